@@ -1,0 +1,1 @@
+"""Built-in scenario and training configurations (YAML files beside this module)."""

@@ -1,0 +1,59 @@
+"""Figures: the penetration sweep in the manner of the paper's Figure 3."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+PANELS = (
+    ("emission_score", "emission score (Eq. 5)"),
+    ("consumption_score", "consumption score (Eq. 5)"),
+    ("mean_crossing_time_s", "mean crossing time (s)"),
+)
+CLASS_STYLE = {"av": ("tab:blue", "AVs"), "hv": ("tab:orange", "HVs")}
+SIM_STYLE = {"sumo": ("-", "o"), "jax": ("--", "s")}
+
+
+def plot_sweep(
+    results: dict[str, dict[float, dict[str, Any]]], path: Path, title: str
+) -> None:
+    """Emission, consumption and crossing time against AV penetration.
+
+    Args:
+        results: ``{simulator: {penetration: {"av": M, "hv": M, ...}}}`` with
+            simulator "sumo" and/or "jax".
+        path: the PNG to write.
+        title: figure title.
+    """
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8), constrained_layout=True)
+    for ax, (key, label) in zip(axes, PANELS, strict=True):
+        for sim, by_p in results.items():
+            line, marker = SIM_STYLE.get(sim, ("-", "."))
+            for cls, (color, name) in CLASS_STYLE.items():
+                pts = [
+                    (100 * p, m[cls][key])
+                    for p, m in sorted(by_p.items())
+                    if m[cls][key] is not None
+                ]
+                if pts:
+                    xs, ys = zip(*pts, strict=True)
+                    ax.plot(
+                        xs,
+                        ys,
+                        line,
+                        marker=marker,
+                        color=color,
+                        label=f"{name} ({sim.upper()})",
+                    )
+        ax.set_xlabel("AV penetration (%)")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.suptitle(title)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

@@ -1,0 +1,1 @@
+"""The SUMO side of jaxround: scenario files, the libsumo runner and evaluation."""

@@ -1,0 +1,93 @@
+"""The `jaxround` command: JSON output, errors before work, nothing overwritten."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import yaml
+
+from jaxround.cli import main, percent_list
+from tests.conftest import builtin_dict
+
+
+def small_config_file(tmp_path: Path, n: int = 100) -> Path:
+    d = builtin_dict("milan")
+    d["demand"].update(n_vehicles=n, duration_s=300.0)
+    path = tmp_path / "small.yaml"
+    path.write_text(yaml.safe_dump(d))
+    return path
+
+
+def test_percent_list() -> None:
+    assert percent_list("0,10,...,100") == [i / 10 for i in range(11)]
+    assert percent_list("50,0") == [0.0, 0.5]
+    import argparse
+
+    with pytest.raises(argparse.ArgumentTypeError, match="percentage"):
+        percent_list("0,150")
+
+
+@pytest.mark.sumo
+def test_sumo_json(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    cfg = small_config_file(tmp_path)
+    code = main(
+        [
+            "sumo",
+            "--config",
+            str(cfg),
+            "--penetration",
+            "10",
+            "--seeds",
+            "2",
+            "--json",
+            "--no-progress",
+        ]
+    )
+    assert code == 0
+    out = json.loads(capsys.readouterr().out)
+    assert len(out["per_seed"]) == 2
+    mean = out["mean"]
+    for cls in ("all", "hv", "av"):
+        for key in (
+            "n_departed",
+            "n_arrived",
+            "mean_crossing_time_s",
+            "co2_g_per_veh",
+            "fuel_g_per_veh",
+            "consumption_score",
+            "emission_score",
+        ):
+            assert key in mean[cls]
+    assert mean["all"]["n_departed"] == 100
+    assert mean["av"]["n_vehicles"] == 10
+    assert {"collisions", "emergency_brakings", "teleports"} <= set(mean)
+
+
+@pytest.mark.sumo
+def test_scenario_refuses_to_overwrite(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "scn"
+    assert main(["scenario", "--out", str(out), "--penetration", "20"]) == 0
+    net = out / "milan.net.xml"
+    before = net.read_bytes()
+    assert main(["scenario", "--out", str(out)]) == 2
+    assert "pass --force" in capsys.readouterr().err
+    assert net.read_bytes() == before
+    assert main(["scenario", "--out", str(out), "--force"]) == 0
+
+
+def test_bad_config_fails_before_work(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    d = builtin_dict("milan")
+    d["demand"]["od"][0] = [0.0, 0.5, 0.2, 0.2]
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump(d))
+    assert main(["sumo", "--config", str(bad), "--json"]) == 2
+    err = capsys.readouterr().err
+    assert "demand.od[0]: sums to 0.9, expected 1" in err
+    with pytest.raises(SystemExit):
+        main(["sumo", "--penetration", "140"])
