@@ -34,9 +34,10 @@ class VehicleRecords:
         arrival_s: float (N,) time the vehicle left the network (nan if not).
         co2_g: float (N,) CO2 emitted over the trip, g (nan if not arrived).
         fuel_g: float (N,) fuel used over the trip, g (nan if not arrived).
-        queue_veh: float (T, n_legs) vehicles queued on each approach at each
-            step within the demand horizon (halting on the approach, speed
-            below 0.1 m/s, plus those waiting to be inserted).
+        queue_mean_veh: float (n_legs,) mean over the steps of the demand
+            horizon of the vehicles queued on each approach (halting there,
+            speed below 0.1 m/s, plus those waiting to be inserted).
+        queue_max_veh: float (n_legs,) the largest such queue.
     """
 
     is_av: np.ndarray
@@ -46,7 +47,8 @@ class VehicleRecords:
     arrival_s: np.ndarray
     co2_g: np.ndarray
     fuel_g: np.ndarray
-    queue_veh: np.ndarray
+    queue_mean_veh: np.ndarray
+    queue_max_veh: np.ndarray
 
     @property
     def arrived(self) -> np.ndarray:
@@ -115,11 +117,8 @@ def class_metrics(records: VehicleRecords, horizon_s: float) -> dict[str, Any]:
                 (records.depart_s - records.scheduled_depart_s)[departed]
             ),
         }
-    q = records.queue_veh
-    out["all"]["queue_mean_veh"] = (
-        [float(x) for x in q.mean(axis=0)] if len(q) else None
-    )
-    out["all"]["queue_max_veh"] = [float(x) for x in q.max(axis=0)] if len(q) else None
+    out["all"]["queue_mean_veh"] = [float(x) for x in records.queue_mean_veh]
+    out["all"]["queue_max_veh"] = [float(x) for x in records.queue_max_veh]
     return out
 
 

@@ -141,6 +141,7 @@ def _read_tripinfo(
         if em is not None:
             co2[i] = float(em.get("CO2_abs")) / 1000.0  # mg -> g
             fuel[i] = float(em.get("fuel_abs")) / 1000.0
+    empty = np.zeros(queues.shape[1])
     return VehicleRecords(
         is_av=schedule.is_av.copy(),
         origin=schedule.origin.copy(),
@@ -149,7 +150,8 @@ def _read_tripinfo(
         arrival_s=arrival,
         co2_g=co2,
         fuel_g=fuel,
-        queue_veh=queues,
+        queue_mean_veh=queues.mean(axis=0) if len(queues) else empty,
+        queue_max_veh=queues.max(axis=0) if len(queues) else empty,
     )
 
 

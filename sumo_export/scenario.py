@@ -111,7 +111,7 @@ def sumocfg_xml(cfg: ScenarioConfig, net: Path, routes: Path) -> str:
     <collision.check-junctions value="true"/>
     <collision.action value="warn"/>
     <time-to-teleport value="300"/>
-    <default.action-step-length value="{cfg.simulation.dt_s}"/>
+    <step-method.ballistic value="false"/>
   </processing>
   <random_number>
     <seed value="{cfg.simulation.seed}"/>

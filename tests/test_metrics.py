@@ -25,7 +25,8 @@ def records() -> VehicleRecords:
         arrival_s=np.array([20.0, 40.0, 35.0, NAN]),
         co2_g=np.array([50.0, 90.0, 60.0, NAN]),
         fuel_g=np.array([16.0, 30.0, 23.0, NAN]),
-        queue_veh=np.array([[0.0, 1.0], [2.0, 3.0], [1.0, 2.0]]),
+        queue_mean_veh=np.array([1.0, 2.0]),
+        queue_max_veh=np.array([2.0, 3.0]),
     )
 
 

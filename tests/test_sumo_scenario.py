@@ -92,7 +92,8 @@ def test_sumo_run_records_every_vehicle(tmp_path: Path) -> None:
         assert seen[vehicle_id(i)] == pytest.approx(s.speed_factor[i], abs=1e-9)
     m = class_metrics(r, cfg.demand.duration_s)
     assert m["av"]["n_vehicles"] == 30 and m["hv"]["n_vehicles"] == 120
-    assert r.queue_veh.shape == (int(600 / 0.5), cfg.n_legs)
+    assert r.queue_mean_veh.shape == r.queue_max_veh.shape == (cfg.n_legs,)
+    assert np.all(r.queue_max_veh >= r.queue_mean_veh)
 
 
 @pytest.mark.parametrize("name", ["three_leg", "six_leg"])
