@@ -1,0 +1,411 @@
+"""The roundabout as a gymnax-style JAX environment.
+
+    env, params = jaxround.make("milan")
+    obs, state = env.reset(key, params)
+    obs, state, reward, done, info = env.step(key, state, action, params)
+
+`reset` and `step` are pure and jit-able; batch them with
+``jax.vmap(env.step, in_axes=(0, 0, 0, None))``. `step` resets by itself when
+an episode ends. `reset_to_schedule` starts from a given departure schedule
+(the one SUMO runs), for parity checks and evaluation.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxround import dynamics, emissions, idm
+from jaxround.config import ScenarioConfig, load_config
+from jaxround.network import CompiledNetwork, compile_network
+from jaxround.schedule import Schedule as NumpySchedule
+from jaxround.state import EnvParams, EnvState, Schedule
+
+#: Extra seconds after the demand horizon for the last vehicles to leave.
+DEFAULT_DRAIN_S = 300.0
+#: Number of per-slot observation features of the basic observer.
+N_BASIC_FEATURES = 6
+
+
+class RoundaboutEnv:
+    """A single-lane roundabout with M vehicle slots and N scheduled vehicles.
+
+    Static settings (shapes, dt, the network) live here; traced numbers in
+    `EnvParams`; everything that changes in `EnvState`.
+    """
+
+    def __init__(
+        self,
+        cfg: ScenarioConfig,
+        network: CompiledNetwork,
+        max_vehicles: int = 64,
+        episode_s: float | None = None,
+    ) -> None:
+        if network.n_legs != cfg.n_legs:
+            raise ValueError(
+                f"network has {network.n_legs} legs, config {cfg.name!r} "
+                f"has {cfg.n_legs}"
+            )
+        if max_vehicles < 1:
+            raise ValueError(f"max_vehicles: {max_vehicles}, expected >= 1")
+        self.cfg = cfg
+        self.network = network
+        self.net = dynamics.NetArrays.from_network(network)
+        self.max_vehicles = int(max_vehicles)
+        self.n_schedule = cfg.demand.n_vehicles
+        self.dt = cfg.simulation.dt_s
+        self.n_substeps = idm.idm_substeps(self.dt)
+        hv = cfg.drivers.hv
+        self.action_step = (
+            max(1, math.floor(hv.action_step_length / self.dt + 1e-9)) * self.dt
+        )
+        self.episode_s = (
+            cfg.demand.duration_s + DEFAULT_DRAIN_S if episode_s is None else episode_s
+        )
+        self.episode_steps = int(math.ceil(self.episode_s / self.dt))
+
+    # ------------------------------------------------------------------ params
+
+    @property
+    def default_params(self) -> EnvParams:
+        return EnvParams.from_config(self.cfg)
+
+    @property
+    def n_legs(self) -> int:
+        return self.network.n_legs
+
+    # ------------------------------------------------------------------ schedules
+
+    def schedule_from_numpy(self, schedule: NumpySchedule) -> Schedule:
+        """The JAX form of a schedule drawn by `jaxround.schedule.make_schedule`."""
+        if schedule.n_vehicles != self.n_schedule:
+            raise ValueError(
+                f"schedule has {schedule.n_vehicles} vehicles, the environment "
+                f"{self.n_schedule}"
+            )
+        route = self.network.route_index[schedule.origin, schedule.destination]
+        return Schedule(
+            depart_s=jnp.asarray(schedule.depart_s, jnp.float32),
+            route=jnp.asarray(route, jnp.int32),
+            origin=jnp.asarray(schedule.origin, jnp.int32),
+            speed_factor=jnp.asarray(schedule.speed_factor, jnp.float32),
+            is_av=jnp.asarray(schedule.is_av),
+        )
+
+    def draw_schedule(self, key: jax.Array, params: EnvParams) -> Schedule:
+        """A random schedule in JAX with the distribution of `make_schedule`."""
+        n = self.n_schedule
+        k_t, k_o, k_d, k_s, k_av = jax.random.split(key, 5)
+        t = jnp.sort(jax.random.uniform(k_t, (n,), maxval=params.duration_s))
+        depart = jnp.floor(t / self.dt) * self.dt
+        origin = jax.random.categorical(k_o, jnp.log(params.origin_share), shape=(n,))
+        dest = jax.random.categorical(k_d, jnp.log(params.od[origin] + 1e-30))
+        z = jax.random.truncated_normal(
+            k_s, -0.8 / jnp.maximum(params.speed_dev, 1e-6),
+            1.0 / jnp.maximum(params.speed_dev, 1e-6), (n,),
+        )  # fmt: skip
+        speed_factor = jnp.round((1.0 + params.speed_dev * z) * 1e4) / 1e4
+        rank = jax.random.permutation(k_av, n)
+        n_av = jnp.floor(params.penetration * n + 0.5 + 1e-6)
+        route = jnp.asarray(self.network.route_index)[origin, dest]
+        return Schedule(
+            depart_s=depart.astype(jnp.float32),
+            route=route.astype(jnp.int32),
+            origin=origin.astype(jnp.int32),
+            speed_factor=speed_factor.astype(jnp.float32),
+            is_av=rank < n_av,
+        )
+
+    # ------------------------------------------------------------------ API
+
+    def reset(self, key: jax.Array, params: EnvParams) -> tuple[jax.Array, EnvState]:
+        """Start an episode with a freshly drawn schedule."""
+        return self.reset_to_schedule(self.draw_schedule(key, params), params)
+
+    def reset_to_schedule(
+        self, schedule: Schedule, params: EnvParams
+    ) -> tuple[jax.Array, EnvState]:
+        """Start an episode that inserts the vehicles of `schedule`."""
+        m, n, g = self.max_vehicles, self.n_schedule, self.n_legs
+        zf = jnp.zeros(m, jnp.float32)
+        state = EnvState(
+            step=jnp.int32(0),
+            active=jnp.zeros(m, bool),
+            vid=-jnp.ones(m, jnp.int32),
+            route=jnp.zeros(m, jnp.int32),
+            pos=zf,
+            speed=zf,
+            accel=zf,
+            is_av=jnp.zeros(m, bool),
+            speed_factor=jnp.ones(m, jnp.float32),
+            waiting_s=zf,
+            co2_mg=zf,
+            fuel_mg=zf,
+            schedule=schedule,
+            inserted=jnp.zeros(n, bool),
+            insert_s=jnp.full(n, jnp.nan, jnp.float32),
+            arrival_s=jnp.full(n, jnp.nan, jnp.float32),
+            trip_co2_mg=jnp.zeros(n, jnp.float32),
+            trip_fuel_mg=jnp.zeros(n, jnp.float32),
+            queue_sum=jnp.zeros(g, jnp.float32),
+            queue_max=jnp.zeros(g, jnp.float32),
+            queue_samples=jnp.int32(0),
+            overflow=jnp.int32(0),
+        )
+        state = self._insert(state, params, jnp.float32(0.0))
+        return self.observation(state, params), state
+
+    def step(
+        self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams
+    ) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, dict[str, Any]]:
+        """One step of dt seconds; a finished episode restarts with a new schedule.
+
+        Args:
+            key: PRNG key (used by the reset).
+            state: the current state.
+            action: float (M, 2) per slot: acceleration and lane-change flag
+                (ignored for human drivers).
+            params: traced parameters.
+
+        Returns:
+            (obs, state, reward, done, info); reward is float (M,) per slot.
+        """
+        obs, new_state, reward, done, info = self.step_env(key, state, action, params)
+        obs_reset, state_reset = self.reset(key, params)
+        state = jax.tree.map(lambda r, s: jnp.where(done, r, s), state_reset, new_state)
+        obs = jnp.where(done, obs_reset, obs)
+        return obs, state, reward, done, info
+
+    def step_env(
+        self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams
+    ) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, dict[str, Any]]:
+        """One step without the automatic reset (see `step`)."""
+        del key, action  # the AV action arrives with the AV controller
+        p, net = params, self.net
+        t = state.step.astype(jnp.float32) * self.dt  # time at the start of the step
+
+        # 1. plan and move
+        v_next, _, _ = dynamics.planned_speed(
+            net, p, state.route, state.pos, state.speed, state.speed_factor,
+            state.active, state.waiting_s, self.dt, self.n_substeps, self.action_step,
+        )  # fmt: skip
+        pos_next = state.pos + v_next * self.dt
+        route_len = net.route_length[state.route]
+        arrived = state.active & (pos_next > route_len - dynamics.ARRIVAL_EPS)
+        # SUMO counts the arrival step in full (measured against tripinfo)
+        co2, fuel = emissions.step_emissions_mg(state.speed, v_next, self.dt)
+        co2 = state.co2_mg + jnp.where(state.active, co2, 0.0)
+        fuel = state.fuel_mg + jnp.where(state.active, fuel, 0.0)
+        waiting = jnp.where(
+            v_next < dynamics.HALTING_SPEED, state.waiting_s + self.dt, 0.0
+        )
+
+        # 2. arrivals leave their slots
+        vid = jnp.where(arrived, state.vid, self.n_schedule)  # out of range: dropped
+        arrival_s = state.arrival_s.at[vid].set(t + self.dt, mode="drop")
+        trip_co2 = state.trip_co2_mg.at[vid].set(co2, mode="drop")
+        trip_fuel = state.trip_fuel_mg.at[vid].set(fuel, mode="drop")
+        active = state.active & ~arrived
+        state = state.replace(
+            step=state.step + 1,
+            active=active,
+            vid=jnp.where(active, state.vid, -1),
+            pos=jnp.where(active, pos_next, 0.0),
+            speed=jnp.where(active, v_next, 0.0),
+            accel=jnp.where(active, (v_next - state.speed) / self.dt, 0.0),
+            waiting_s=jnp.where(active, waiting, 0.0),
+            co2_mg=jnp.where(active, co2, 0.0),
+            fuel_mg=jnp.where(active, fuel, 0.0),
+            arrival_s=arrival_s,
+            trip_co2_mg=trip_co2,
+            trip_fuel_mg=trip_fuel,
+        )
+
+        # 3. insertions, then the queue statistics of the new time
+        state = self._insert(state, p, t + self.dt)
+        state = self._count_queues(state, p, t + self.dt)
+        done = state.step >= self.episode_steps
+        reward = jnp.zeros(self.max_vehicles, jnp.float32)
+        info = {
+            "terminated": jnp.zeros(self.max_vehicles, bool),
+            "truncated": done,
+            "arrived": jnp.sum(arrived),
+            "overflow": state.overflow,
+            "n_active": jnp.sum(state.active),
+        }
+        return self.observation(state, p), state, reward, done, info
+
+    # ------------------------------------------------------------------ pieces
+
+    def _insert(self, state: EnvState, params: EnvParams, t: jax.Array) -> EnvState:
+        """Insert the first waiting vehicle of each leg where its approach has room.
+
+        As SUMO with departPos="base", departSpeed="max": the vehicle's back at
+        the start of its approach, at the highest speed that is safe behind
+        the vehicle ahead; otherwise it waits (and blocks later vehicles of
+        its leg) until the next step.
+        """
+        p, net, s = params, self.net, state.schedule
+        g, n, m = self.n_legs, self.n_schedule, self.max_vehicles
+        waiting = ~state.inserted & (s.depart_s <= t + 1e-4)  # (N,)
+        idx = jnp.arange(n)
+        mine = waiting[None, :] & (
+            s.origin[None, :] == jnp.arange(g)[:, None]
+        )  # (G, N)
+        cand = jnp.min(jnp.where(mine, idx[None, :], n), axis=1)  # (G,)
+        has = cand < n
+        c = jnp.minimum(cand, n - 1)
+        route = s.route[c]  # (G,)
+        front = jnp.full(g, p.length + dynamics.DEPART_OFFSET)
+        # the nearest vehicle ahead of the new one's front, along its route
+        back = jnp.maximum(state.pos - p.length, 0.0)
+        _, lane, pos_on_lane = dynamics.locate(net, state.route, back)
+        proj, _ = dynamics.project(net, route, lane, pos_on_lane)  # (G, M) backs
+        ahead = jnp.where(state.active[None, :], proj - front[:, None], jnp.nan)
+        ahead = jnp.where(jnp.isnan(ahead) | (ahead < -p.length), jnp.inf, ahead)
+        j = jnp.argmin(ahead, axis=1)
+        gap = jnp.min(ahead, axis=1) - p.min_gap  # SUMO's gap2pred
+        v_lane = jnp.minimum(
+            net.lane_speed[net.route_lanes[route, 0]] * s.speed_factor[c], p.max_speed
+        )
+        free_lane = jnp.isinf(gap)
+        # SUMO lowers the speed first for the vehicle ahead, then for the stop
+        # the vehicle plans at its yield line (beyond the visibility distance)
+        v_follow = dynamics.insertion_speed(
+            v_lane, v_lane, state.speed[j],
+            jnp.where(free_lane, 1e6, jnp.maximum(gap, 0.0)),
+            p, self.dt, self.n_substeps,
+        )  # fmt: skip
+        v_ins = jnp.where(free_lane, v_lane, v_follow)
+        v_ins = dynamics.insertion_stop_speed(
+            v_ins, v_lane, net.yield_offset[route] - front, p, self.dt, self.n_substeps
+        )
+        room = free_lane | (gap >= 0.0)
+        ok = has & room
+        # slots: the k-th inserting leg takes the k-th free slot
+        free = jnp.nonzero(~state.active, size=g, fill_value=m)[0]  # (G,)
+        rank = jnp.cumsum(ok) - 1
+        slot = jnp.where(ok, free[jnp.clip(rank, 0, g - 1)], m)
+        overflow = ok & (slot >= m)
+        ok = ok & (slot < m)
+        slot = jnp.where(ok, slot, m)  # m: dropped by the scatters below
+        vids = jnp.where(ok, c, n)
+
+        def put(arr: jax.Array, values: jax.Array) -> jax.Array:
+            return arr.at[slot].set(values.astype(arr.dtype), mode="drop")
+
+        return state.replace(
+            active=put(state.active, jnp.ones(g, bool)),
+            vid=put(state.vid, c),
+            route=put(state.route, route),
+            pos=put(state.pos, front),
+            speed=put(state.speed, v_ins),
+            accel=put(state.accel, jnp.zeros(g)),
+            is_av=put(state.is_av, s.is_av[c]),
+            speed_factor=put(state.speed_factor, s.speed_factor[c]),
+            waiting_s=put(state.waiting_s, jnp.zeros(g)),
+            co2_mg=put(state.co2_mg, jnp.zeros(g)),
+            fuel_mg=put(state.fuel_mg, jnp.zeros(g)),
+            inserted=state.inserted.at[vids].set(True, mode="drop"),
+            insert_s=state.insert_s.at[vids].set(t, mode="drop"),
+            overflow=state.overflow + jnp.sum(overflow),
+        )
+
+    def _count_queues(
+        self, state: EnvState, params: EnvParams, t: jax.Array
+    ) -> EnvState:
+        """Queued vehicles per leg: halting on the approach plus waiting to enter."""
+        net, s = self.net, state.schedule
+        _, lane, _ = dynamics.locate(net, state.route, state.pos)
+        on_entry = lane[None, :] == net.entry_lane[:, None]  # (G, M)
+        halting = state.active & (state.speed < dynamics.HALTING_SPEED)
+        queued = jnp.sum(on_entry & halting[None, :], axis=1)
+        pending = ~state.inserted & (s.depart_s <= t + 1e-4)
+        queued = queued + jnp.sum(
+            pending[None, :] & (s.origin[None, :] == jnp.arange(self.n_legs)[:, None]),
+            axis=1,
+        )
+        within = t <= params.duration_s + 1e-4
+        q = queued.astype(jnp.float32)
+        return state.replace(
+            queue_sum=state.queue_sum + jnp.where(within, q, 0.0),
+            queue_max=jnp.where(
+                within, jnp.maximum(state.queue_max, q), state.queue_max
+            ),
+            queue_samples=state.queue_samples + within.astype(jnp.int32),
+        )
+
+    def observation(self, state: EnvState, params: EnvParams) -> jax.Array:
+        """Basic per-slot features, float (M, 6): active, AV, progress, speed,
+        acceleration, waiting (normalised). Richer observers come with the AVs."""
+        route_len = self.net.route_length[state.route]
+        f = jnp.stack(
+            [
+                state.active.astype(jnp.float32),
+                state.is_av.astype(jnp.float32),
+                state.pos / route_len,
+                state.speed / params.max_speed,
+                state.accel / params.accel,
+                state.waiting_s / params.time_to_impatience,
+            ],
+            axis=-1,
+        )
+        return jnp.where(state.active[:, None], f, 0.0)
+
+
+def make(
+    scenario: str | Path | ScenarioConfig = "milan",
+    max_vehicles: int = 64,
+    episode_s: float | None = None,
+    workdir: str | Path | None = None,
+) -> tuple[RoundaboutEnv, EnvParams]:
+    """Build the environment of a scenario: its network is compiled by netconvert.
+
+    Args:
+        scenario: a built-in name, a YAML path, or a `ScenarioConfig`.
+        max_vehicles: vehicle slots M.
+        episode_s: episode length; default demand horizon + 300 s.
+        workdir: where to write the SUMO network; a cache folder if None.
+
+    Returns:
+        (env, default params).
+    """
+    cfg = scenario if isinstance(scenario, ScenarioConfig) else load_config(scenario)
+    net_path = network_file(cfg, workdir)
+    env = RoundaboutEnv(
+        cfg, compile_network(net_path, cfg.n_legs), max_vehicles, episode_s
+    )
+    return env, env.default_params
+
+
+def network_file(cfg: ScenarioConfig, workdir: str | Path | None = None) -> Path:
+    """The scenario's `.net.xml`, built once per network fingerprint and cached."""
+    from sumo_export.network import build_network
+
+    if workdir is None:
+        base = Path.home() / ".cache" / "jaxround" / "networks"
+        workdir = base / f"{cfg.name}-{cfg.fingerprint()}"
+    workdir = Path(workdir)
+    path = workdir / f"{cfg.name}.net.xml"
+    if not path.exists():
+        build_network(cfg.network, workdir, cfg.name)
+    return path
+
+
+def records_from_state(
+    state: EnvState, is_av: np.ndarray | None = None
+) -> dict[str, np.ndarray]:
+    """Per-vehicle results of a finished episode as NumPy arrays (host side)."""
+    s = jax.device_get(state)
+    return {
+        "is_av": np.asarray(s.schedule.is_av) if is_av is None else is_av,
+        "insert_s": np.asarray(s.insert_s, np.float64),
+        "arrival_s": np.asarray(s.arrival_s, np.float64),
+        "co2_g": np.asarray(s.trip_co2_mg, np.float64) / 1000.0,
+        "fuel_g": np.asarray(s.trip_fuel_mg, np.float64) / 1000.0,
+    }

@@ -1,0 +1,163 @@
+"""The three kinds of settings of the JAX environment: traced params, state, statics.
+
+- `EnvParams`: continuous numbers a `vmap` may sweep (driver parameters,
+  demand shares, penetration, reward weights).
+- `EnvState`: fixed-size arrays: M vehicle slots with an `active` mask, the N
+  vehicles of the episode's departure schedule, and running statistics.
+- Static settings (max_vehicles, dt, the compiled network) live on the
+  environment object (`jaxround.env.RoundaboutEnv`), never traced.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from jaxround.config import ScenarioConfig
+
+
+@struct.dataclass
+class EnvParams:
+    """Traced parameters. Scalars unless a shape is given.
+
+    Attributes:
+        accel: maximum acceleration a (IDM), m/s^2.
+        decel: comfortable deceleration b, m/s^2.
+        emergency_decel: the bound on braking, m/s^2.
+        tau: desired time headway T, s.
+        min_gap: standstill gap s0, m.
+        delta: IDM acceleration exponent.
+        length: vehicle length, m.
+        max_speed: vehicle maximum speed, m/s.
+        jm_timegap_minor: gap an entering vehicle needs before a ring vehicle, s.
+        impatience: base impatience, 0..1.
+        time_to_impatience: waiting seconds that add 1 to the impatience.
+        speed_dev: std of the desired-speed factor (drawn per vehicle at reset).
+        penetration: share of AVs drawn at reset.
+        origin_share: (n_legs,) share of vehicles entering at each leg.
+        od: (n_legs, n_legs) exit shares per origin.
+        duration_s: demand horizon over which the N departures are spread.
+        desired_speed: AV reward: desired speed v, m/s.
+        reward_speed_weight: AV reward: weight of the speed term.
+        reward_pollution_weight: AV reward: weight of the pollution term.
+    """
+
+    accel: jax.Array
+    decel: jax.Array
+    emergency_decel: jax.Array
+    tau: jax.Array
+    min_gap: jax.Array
+    delta: jax.Array
+    length: jax.Array
+    max_speed: jax.Array
+    jm_timegap_minor: jax.Array
+    impatience: jax.Array
+    time_to_impatience: jax.Array
+    speed_dev: jax.Array
+    penetration: jax.Array
+    origin_share: jax.Array
+    od: jax.Array
+    duration_s: jax.Array
+    desired_speed: jax.Array
+    reward_speed_weight: jax.Array
+    reward_pollution_weight: jax.Array
+
+    @classmethod
+    def from_config(cls, cfg: ScenarioConfig) -> EnvParams:
+        """The traced numbers of a scenario (human drivers' vType)."""
+        hv = cfg.drivers.hv
+        f = jnp.float32
+        return cls(
+            accel=f(hv.accel),
+            decel=f(hv.decel),
+            emergency_decel=f(hv.emergency_decel),
+            tau=f(hv.tau),
+            min_gap=f(hv.min_gap),
+            delta=f(hv.delta),
+            length=f(hv.length),
+            max_speed=f(hv.max_speed),
+            jm_timegap_minor=f(hv.jm_timegap_minor),
+            impatience=f(hv.impatience),
+            time_to_impatience=f(180.0),
+            speed_dev=f(hv.speed_dev),
+            penetration=f(cfg.simulation.penetration),
+            origin_share=jnp.asarray(cfg.demand.origin_share, jnp.float32),
+            od=jnp.asarray(cfg.demand.od, jnp.float32),
+            duration_s=f(cfg.demand.duration_s),
+            desired_speed=f(max(leg.speed_limit_mps for leg in cfg.network.legs)),
+            reward_speed_weight=f(1.0),
+            reward_pollution_weight=f(1.0),
+        )
+
+
+@struct.dataclass
+class Schedule:
+    """The N vehicles of an episode, sorted by departure. Arrays (N,).
+
+    Attributes:
+        depart_s: float scheduled departure times.
+        route: int route index (see `CompiledNetwork.route_index`).
+        origin: int entry leg.
+        speed_factor: float desired-speed factor.
+        is_av: bool vehicle class.
+    """
+
+    depart_s: jax.Array
+    route: jax.Array
+    origin: jax.Array
+    speed_factor: jax.Array
+    is_av: jax.Array
+
+
+@struct.dataclass
+class EnvState:
+    """State of one roundabout. M = max_vehicles slots, N scheduled vehicles.
+
+    Attributes:
+        step: int, steps done since reset.
+        active: bool (M,) slot holds a vehicle.
+        vid: int (M,) schedule index of the slot's vehicle (-1 if empty).
+        route: int (M,) route index.
+        pos: float (M,) front position along the route, m.
+        speed: float (M,) m/s.
+        accel: float (M,) acceleration held between action points, m/s^2.
+        is_av: bool (M,).
+        speed_factor: float (M,).
+        waiting_s: float (M,) consecutive seconds below 0.1 m/s.
+        co2_mg: float (M,) CO2 emitted so far.
+        fuel_mg: float (M,) fuel used so far.
+        schedule: the episode's `Schedule` (N,).
+        inserted: bool (N,) the vehicle has entered the network.
+        insert_s: float (N,) insertion time (nan before).
+        arrival_s: float (N,) arrival time (nan before).
+        trip_co2_mg: float (N,) CO2 of finished trips.
+        trip_fuel_mg: float (N,) fuel of finished trips.
+        queue_sum: float (n_legs,) sum over steps of queued vehicles per leg.
+        queue_max: float (n_legs,) largest queue per leg.
+        queue_samples: int, steps summed into `queue_sum` (within the horizon).
+        overflow: int, insertions postponed because every slot was full.
+    """
+
+    step: jax.Array
+    active: jax.Array
+    vid: jax.Array
+    route: jax.Array
+    pos: jax.Array
+    speed: jax.Array
+    accel: jax.Array
+    is_av: jax.Array
+    speed_factor: jax.Array
+    waiting_s: jax.Array
+    co2_mg: jax.Array
+    fuel_mg: jax.Array
+    schedule: Schedule
+    inserted: jax.Array
+    insert_s: jax.Array
+    arrival_s: jax.Array
+    trip_co2_mg: jax.Array
+    trip_fuel_mg: jax.Array
+    queue_sum: jax.Array
+    queue_max: jax.Array
+    queue_samples: jax.Array
+    overflow: jax.Array
