@@ -18,9 +18,8 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
-from jaxround import dynamics, emissions, idm
+from jaxround import dynamics, emissions, geometry, idm, insertion
 from jaxround.config import ScenarioConfig, load_config
 from jaxround.network import CompiledNetwork, compile_network
 from jaxround.schedule import Schedule as NumpySchedule
@@ -55,7 +54,7 @@ class RoundaboutEnv:
             raise ValueError(f"max_vehicles: {max_vehicles}, expected >= 1")
         self.cfg = cfg
         self.network = network
-        self.net = dynamics.NetArrays.from_network(network)
+        self.net = geometry.NetArrays.from_network(network)
         self.max_vehicles = int(max_vehicles)
         self.n_schedule = cfg.demand.n_vehicles
         self.dt = cfg.simulation.dt_s
@@ -264,8 +263,8 @@ class RoundaboutEnv:
         front = jnp.full(g, p.length + dynamics.DEPART_OFFSET)
         # the nearest vehicle ahead of the new one's front, along its route
         back = jnp.maximum(state.pos - p.length, 0.0)
-        _, lane, pos_on_lane = dynamics.locate(net, state.route, back)
-        proj, _ = dynamics.project(net, route, lane, pos_on_lane)  # (G, M) backs
+        _, lane, pos_on_lane = geometry.locate(net, state.route, back)
+        proj = geometry.project(net, route, lane, pos_on_lane)  # (G, M) backs
         ahead = jnp.where(state.active[None, :], proj - front[:, None], jnp.nan)
         ahead = jnp.where(jnp.isnan(ahead) | (ahead < -p.length), jnp.inf, ahead)
         j = jnp.argmin(ahead, axis=1)
@@ -276,13 +275,13 @@ class RoundaboutEnv:
         free_lane = jnp.isinf(gap)
         # SUMO lowers the speed first for the vehicle ahead, then for the stop
         # the vehicle plans at its yield line (beyond the visibility distance)
-        v_follow = dynamics.insertion_speed(
+        v_follow = insertion.insertion_speed(
             v_lane, v_lane, state.speed[j],
             jnp.where(free_lane, 1e6, jnp.maximum(gap, 0.0)),
             p, self.dt, self.n_substeps,
         )  # fmt: skip
         v_ins = jnp.where(free_lane, v_lane, v_follow)
-        v_ins = dynamics.insertion_stop_speed(
+        v_ins = insertion.insertion_stop_speed(
             v_ins, v_lane, net.yield_offset[route] - front, p, self.dt, self.n_substeps
         )
         room = free_lane | (gap >= 0.0)
@@ -321,7 +320,7 @@ class RoundaboutEnv:
     ) -> EnvState:
         """Queued vehicles per leg: halting on the approach plus waiting to enter."""
         net, s = self.net, state.schedule
-        _, lane, _ = dynamics.locate(net, state.route, state.pos)
+        _, lane, _ = geometry.locate(net, state.route, state.pos)
         on_entry = lane[None, :] == net.entry_lane[:, None]  # (G, M)
         halting = state.active & (state.speed < dynamics.HALTING_SPEED)
         queued = jnp.sum(on_entry & halting[None, :], axis=1)
@@ -384,28 +383,25 @@ def make(
 
 
 def network_file(cfg: ScenarioConfig, workdir: str | Path | None = None) -> Path:
-    """The scenario's `.net.xml`, built once per network fingerprint and cached."""
+    """The scenario's `.net.xml`, built once per network fingerprint and cached.
+
+    The cache lives in ``$XDG_CACHE_HOME/jaxround/networks`` (``~/.cache`` by
+    default); a network is built in a temporary folder and moved into place, so
+    parallel processes never see half a file.
+    """
+    import os
+    import tempfile
+
     from sumo_export.network import build_network
 
     if workdir is None:
-        base = Path.home() / ".cache" / "jaxround" / "networks"
-        workdir = base / f"{cfg.name}-{cfg.fingerprint()}"
+        cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
+        workdir = cache / "jaxround" / "networks" / f"{cfg.name}-{cfg.fingerprint()}"
     workdir = Path(workdir)
     path = workdir / f"{cfg.name}.net.xml"
     if not path.exists():
-        build_network(cfg.network, workdir, cfg.name)
+        workdir.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+            built = build_network(cfg.network, Path(tmp), cfg.name)
+            os.replace(built, path)
     return path
-
-
-def records_from_state(
-    state: EnvState, is_av: np.ndarray | None = None
-) -> dict[str, np.ndarray]:
-    """Per-vehicle results of a finished episode as NumPy arrays (host side)."""
-    s = jax.device_get(state)
-    return {
-        "is_av": np.asarray(s.schedule.is_av) if is_av is None else is_av,
-        "insert_s": np.asarray(s.insert_s, np.float64),
-        "arrival_s": np.asarray(s.arrival_s, np.float64),
-        "co2_g": np.asarray(s.trip_co2_mg, np.float64) / 1000.0,
-        "fuel_g": np.asarray(s.trip_fuel_mg, np.float64) / 1000.0,
-    }

@@ -51,6 +51,20 @@ def run_jax(
     return out
 
 
+def per_vehicle_stats(abs_err: np.ndarray) -> dict[str, float | None]:
+    """Median and 90th percentile of per-vehicle |crossing-time error|, exact share."""
+    if not abs_err.size:
+        return dict.fromkeys(
+            ("per_vehicle_median_abs_err_s", "per_vehicle_p90_abs_err_s",
+             "per_vehicle_exact_share"),
+        )  # fmt: skip
+    return {
+        "per_vehicle_median_abs_err_s": float(np.median(abs_err)),
+        "per_vehicle_p90_abs_err_s": float(np.percentile(abs_err, 90)),
+        "per_vehicle_exact_share": float(np.mean(abs_err < 1e-6)),
+    }
+
+
 def relative_error(a: float | None, b: float | None) -> float | None:
     if a is None or b is None or b == 0:
         return None
@@ -88,12 +102,7 @@ def parity_report(
         "rel_err": {
             k: relative_error(jax_m["all"][k], sumo_m["all"][k]) for k in COMPARED
         },
-        "per_vehicle_median_abs_err_s": float(np.median(per_vehicle))
-        if per_vehicle.size
-        else None,
-        "per_vehicle_p90_abs_err_s": float(np.percentile(per_vehicle, 90))
-        if per_vehicle.size
-        else None,
+        **per_vehicle_stats(per_vehicle),
         "jax_slot_overflow": int(sum(r["overflow"] for r in jax_runs)),
         "sumo_collisions": int(sum(r.collisions for r in sumo_runs)),
     }
