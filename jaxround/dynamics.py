@@ -23,8 +23,13 @@ from jaxround.geometry import (
     project,
 )
 from jaxround.insertion import STOP_OFFSET
-from jaxround.junction import brake_gap, yield_blocked
-from jaxround.state import EnvParams
+from jaxround.junction import (
+    brake_gap,
+    entry_approach,
+    entry_blocked,
+    register,
+)
+from jaxround.state import EnvParams, Registrations
 
 #: Speed below which SUMO counts a vehicle as waiting / halting (m/s).
 HALTING_SPEED = 0.1
@@ -43,15 +48,24 @@ def planned_speed(
     speed_factor: jax.Array,
     active: jax.Array,
     waiting_s: jax.Array,
+    prev_regs: Registrations,
+    t: jax.Array,
     dt: float,
     n_substeps: int,
     action_step: float,
-) -> tuple[jax.Array, jax.Array, jax.Array]:
+    debug: bool = False,
+) -> tuple[jax.Array, Registrations, jax.Array]:
     """Every vehicle's speed at the end of the step, as SUMO's IDM plans it.
 
+    Args:
+        route, pos, speed, speed_factor, waiting_s: (M,) state at time `t`.
+        active: bool (M,).
+        prev_regs: the registrations of the previous step.
+        t: time at the start of the step.
+
     Returns:
-        (v_next, leader, blocked): float (M,), int (M,) leader slot or -1,
-        bool (M,) held at the yield line.
+        (v_next, regs, blocked): float (M,), this step's registrations, bool
+        (M,) held at the yield line.
     """
     p = params
     k, lane, pos_on_lane = locate(net, route, pos)
@@ -128,13 +142,48 @@ def planned_speed(
     v_link = jnp.min(jnp.where(is_link, v_link, jnp.inf), axis=1)  # (M,)
     leave_cap = jnp.where(seen > 0, v_link, jnp.inf)
     v_follow = jnp.minimum(v_follow, v_link)
-    blocked = yield_blocked(
-        net, p, route, pos, speed, speed_factor, v_lane, active, waiting_s,
-        leave_cap, dt,
-    )  # fmt: skip
     can_brake = (seen > brake_gap(speed, p.decel, 0.0, dt)) | (speed < p.decel * dt)
+    before_line = active & (seen > 0)
+    imp = jnp.clip(p.impatience + waiting_s / p.time_to_impatience, 0.0, 1.0)
+    step_label = t + dt
+    # planMove: a vehicle that could still stop and would find its entry
+    # closed (judged on the previous step's registrations) withdraws its
+    # requests on later links; so does one still beyond the visibility point
+    plan = entry_approach(net, p, route, pos, speed, speed_factor, v_lane,
+                          jnp.inf, t, dt)  # fmt: skip
+    plan = plan._replace(leave_speed=plan.arrival_speed)
+    plan = plan._replace(
+        leave=plan.arrival
+        + (net.entry_internal_length[leg] + p.length)
+        / jnp.maximum(plan.arrival_speed, 1e-3)
+    )
+    closed_plan = entry_blocked(net, p, route, plan, prev_regs, imp, step_label, dt)
+    beyond_vis = seen > net.entry_visibility[leg]
+    slowed = (
+        before_line
+        & (brake_gap(speed, p.decel, 0.0, dt) < seen)
+        & (beyond_vis | closed_plan)
+    )
+    v_chain = jnp.minimum(jnp.minimum(speed + p.accel * dt, v_lane), v_follow)
+    v_chain = jnp.minimum(v_chain, jnp.minimum(v_limits, v_free))
+    leader_back = jnp.where(
+        leader >= 0,
+        jnp.take_along_axis(back, jnp.maximum(leader, 0)[:, None], 1)[:, 0],
+        jnp.inf,
+    )
+    regs = register(net, p, route, pos, speed, speed_factor, v_chain, v_follow,
+                    leader_back, active, slowed, t, dt)  # fmt: skip
+    # executeMove: the entry is tested against this step's registrations
+    ego = entry_approach(net, p, route, pos, speed, speed_factor, v_lane,
+                         leave_cap, t, dt)  # fmt: skip
+    imp_now = jnp.where(can_brake, imp, 1.0)
+    blocked = before_line & entry_blocked(
+        net, p, route, ego, regs, imp_now, step_label, dt
+    )
+    if debug:
+        return {k: v for k, v in locals().items() if isinstance(v, jax.Array)}
     too_late = ~can_brake & (seen < brake_gap(speed, p.emergency_decel, 0.0, dt))
-    far = (seen > net.entry_visibility[leg]) & can_brake
+    far = beyond_vis & can_brake
     must_stop = (seen > 0) & ((blocked & ~too_late) | far)
     v_stop = jnp.where(must_stop, v_wait, jnp.inf)
 
@@ -142,4 +191,4 @@ def planned_speed(
     v_next = idm.next_speed(
         speed, v_safe, v_lane, p.accel, p.decel, p.emergency_decel, dt, action_step
     )
-    return jnp.where(active, v_next, 0.0), leader, blocked
+    return jnp.where(active, v_next, 0.0), regs, blocked

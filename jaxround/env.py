@@ -23,7 +23,7 @@ from jaxround import dynamics, emissions, geometry, idm, insertion
 from jaxround.config import ScenarioConfig, load_config
 from jaxround.network import CompiledNetwork, compile_network
 from jaxround.schedule import Schedule as NumpySchedule
-from jaxround.state import EnvParams, EnvState, Schedule
+from jaxround.state import EnvParams, EnvState, Registrations, Schedule
 
 #: Extra seconds after the demand horizon for the last vehicles to leave.
 DEFAULT_DRAIN_S = 300.0
@@ -155,6 +155,7 @@ class RoundaboutEnv:
             queue_max=jnp.zeros(g, jnp.float32),
             queue_samples=jnp.int32(0),
             overflow=jnp.int32(0),
+            registrations=Registrations.empty(m, g),
         )
         state = self._insert(state, params, jnp.float32(0.0))
         return self.observation(state, params), state
@@ -189,9 +190,10 @@ class RoundaboutEnv:
         t = state.step.astype(jnp.float32) * self.dt  # time at the start of the step
 
         # 1. plan and move
-        v_next, _, _ = dynamics.planned_speed(
+        v_next, regs, _ = dynamics.planned_speed(
             net, p, state.route, state.pos, state.speed, state.speed_factor,
-            state.active, state.waiting_s, self.dt, self.n_substeps, self.action_step,
+            state.active, state.waiting_s, state.registrations, t, self.dt,
+            self.n_substeps, self.action_step,
         )  # fmt: skip
         pos_next = state.pos + v_next * self.dt
         route_len = net.route_length[state.route]
@@ -223,6 +225,7 @@ class RoundaboutEnv:
             arrival_s=arrival_s,
             trip_co2_mg=trip_co2,
             trip_fuel_mg=trip_fuel,
+            registrations=regs._replace(ok=regs.ok & active[:, None]),
         )
 
         # 3. insertions, then the queue statistics of the new time

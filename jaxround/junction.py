@@ -5,11 +5,13 @@ Shapes: M vehicle slots, G legs.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 
 from jaxround.geometry import NetArrays, internal_done, locate, normal_done
-from jaxround.state import EnvParams
+from jaxround.state import EnvParams, Registrations
 
 
 def minimal_arrival_time(
@@ -40,7 +42,17 @@ def brake_gap(v: jax.Array, decel: jax.Array, tau: jax.Array, dt: float) -> jax.
     return dt * (n * v - dv * n * (n + 1) / 2.0) + v * tau
 
 
-def yield_blocked(
+class Approach(NamedTuple):
+    """A vehicle's own approach to its entry link. (M,), times absolute."""
+
+    seen: jax.Array
+    arrival: jax.Array
+    leave: jax.Array
+    arrival_speed: jax.Array
+    leave_speed: jax.Array
+
+
+def entry_approach(
     net: NetArrays,
     params: EnvParams,
     route: jax.Array,
@@ -48,125 +60,174 @@ def yield_blocked(
     speed: jax.Array,
     speed_factor: jax.Array,
     v_lane: jax.Array,
-    active: jax.Array,
-    waiting_s: jax.Array,
     leave_cap: jax.Array,
+    t: jax.Array,
     dt: float,
-    debug: bool = False,
-) -> jax.Array:
-    """SUMO's gap acceptance at the entry (MSLink::opened / blockedByFoe).
-
-    The ego is a vehicle before its yield line. Its foes are the vehicles that
-    registered their approach on the ring's through link at that entry in this
-    step: they will drive it, have not reached it yet, are not held back
-    before their own entry, and the link lies within their look-ahead. A
-    vehicle already on the through lane is no foe here; it acts as a link
-    leader in the car following instead.
+) -> Approach:
+    """Arrival at the yield line and leave past the entry, as SUMO registers it.
 
     Args:
-        route, pos, speed, speed_factor, waiting_s: (M,) state.
-        v_lane: (M,) desired speed on each vehicle's current lane.
-        active: bool (M,).
-        leave_cap: (M,) cap on the ego's speed leaving the entry (its link
-            leader's follow speed), inf if none.
-
-    Returns:
-        bool (M,): the entry is closed for the vehicle.
+        t: time at the start of the step (the state's time).
+        leave_cap: (M,) cap on the leave speed from link leaders (inf if none).
     """
     p = params
-    a, b, length = p.accel, p.decel, p.length
-    m = pos.shape[0]
-    leg = net.route_origin[route]  # (M,)
-    v_plan = jnp.minimum(speed + a * dt, v_lane)  # (M,) Euler: planned, not current
-
-    # 1. the ego's own approach: arrival at its yield line, leave past the merge
-    seen = net.yield_offset[route] - pos  # (M,)
+    a, b = p.accel, p.decel
+    leg = net.route_origin[route]
+    v_plan = jnp.minimum(speed + a * dt, v_lane)  # Euler plans with the next speed
+    seen = net.yield_offset[route] - pos
     link_len = net.entry_internal_length[leg]
     v_link = jnp.minimum(
         net.lane_speed[net.route_lanes[route, 1]] * speed_factor, p.max_speed
     )
     a_s = jnp.minimum(jnp.sqrt(2 * a * jnp.maximum(seen, 0) + v_plan**2), v_link)
-    l_s = jnp.minimum(v_link, jnp.sqrt(2 * a * link_len + a_s**2))
-    l_s = jnp.minimum(l_s, leave_cap)
-    a_t = minimal_arrival_time(jnp.maximum(seen, 0), v_plan, a_s, a, b)
-    l_t = a_t + (link_len + length) / jnp.maximum(0.5 * (a_s + l_s), 1e-3)
-
-    # 2. the foes' registrations on the through link of the ego's leg
-    c_off = net.conflict_offset[route][:, leg].T  # (M_ego, M_foe)
-    d_foe = c_off - pos[None, :]  # distance of each foe to that link
-    through = net.through_length[leg][:, None]  # (M_ego, 1)
-    v_thr = jnp.minimum(
-        net.lane_speed[net.through_lane[leg]][:, None] * speed_factor[None, :],
-        p.max_speed,
-    )  # (M_ego, M_foe)
-    vf = v_plan[None, :]
-    d_pos = jnp.maximum(d_foe, 0.0)
-    f_as = jnp.minimum(jnp.sqrt(2 * a * d_pos + vf**2), v_thr)
-    f_ls = jnp.minimum(v_thr, jnp.sqrt(2 * a * through + f_as**2))
-    f_at = minimal_arrival_time(d_pos, vf, f_as, a, b)
-    f_lt = f_at + (through + length) / jnp.maximum(0.5 * (f_as + f_ls), 1e-3)
-    # arrival speed if the foe brakes (MSCFModel::getMinimalArrivalSpeedEuler)
-    disc = vf**2 - 2 * b * (d_foe - vf * p.tau)
-    asb = jnp.where(
-        d_foe < vf, jnp.inf, jnp.where(disc >= 0, jnp.sqrt(jnp.abs(disc)), b)
+    l_s = jnp.minimum(
+        jnp.minimum(v_link, jnp.sqrt(2 * a * link_len + a_s**2)), leave_cap
     )
-    f_asb = jnp.where(d_foe >= brake_gap(vf, b, p.tau, dt), 0.0, jnp.minimum(asb, f_as))
+    a_t = t + minimal_arrival_time(jnp.maximum(seen, 0), v_plan, a_s, a, b)
+    l_t = a_t + (link_len + p.length) / jnp.maximum(0.5 * (a_s + l_s), 1e-3)
+    return Approach(seen, a_t, l_t, a_s, l_s)
+
+
+def register(
+    net: NetArrays,
+    params: EnvParams,
+    route: jax.Array,
+    pos: jax.Array,
+    speed: jax.Array,
+    speed_factor: jax.Array,
+    v_plan: jax.Array,
+    leader_cap: jax.Array,
+    leader_back: jax.Array,
+    active: jax.Array,
+    slowed: jax.Array,
+    t: jax.Array,
+    dt: float,
+) -> Registrations:
+    """Every vehicle's registration on the through link of every leg (SUMO's
+    MSVehicle::setApproachingForAllLinks), for the step starting at `t`.
+
+    Args:
+        v_plan: (M,) the speed each vehicle plans for this step before any
+            junction (accelerating within its lane limit, behind its leaders):
+            SUMO's running look-ahead speed.
+        leader_cap: (M,) the speed each vehicle's leader allows it.
+        leader_back: (M,) where that leader's back lies along the vehicle's
+            route (inf if none): a leader before the link caps the arrival
+            speed there too.
+        slowed: bool (M,) the vehicle is held back before its own entry and
+            withdraws its request on later links.
+    """
+    p = params
+    a, b, length = p.accel, p.decel, p.length
+    g = net.through_length.shape[0]
+    c_off = net.conflict_offset[route]  # (M, G)
+    dist = c_off - pos[:, None]
+    through = net.through_length[None, :]  # (1, G)
+    v_thr = jnp.minimum(
+        net.lane_speed[net.through_lane][None, :] * speed_factor[:, None], p.max_speed
+    )  # (M, G)
+    v_plan = v_plan[:, None]  # (M, 1)
+    d_pos = jnp.maximum(dist, 0.0)
+    # the arrival speed accelerates over the lane before the link only
+    on_last_lane = jnp.minimum(d_pos, net.prev_lane_length[route])
+    a_s = jnp.minimum(jnp.sqrt(2 * a * on_last_lane + v_plan**2), v_thr)
+    leader_first = leader_back[:, None] < c_off
+    a_s = jnp.where(leader_first, jnp.minimum(a_s, leader_cap[:, None]), a_s)
+    l_s = jnp.minimum(v_thr, jnp.sqrt(2 * a * through + a_s**2))
+    a_t = t + minimal_arrival_time(d_pos, v_plan, a_s, a, b)
+    l_t = a_t + (through + length) / jnp.maximum(0.5 * (a_s + l_s), 1e-3)
+    # arrival speed if it brakes (MSCFModel::getMinimalArrivalSpeedEuler)
+    disc = v_plan**2 - 2 * b * (dist - v_plan * p.tau)
+    brk = jnp.where(
+        dist < v_plan, jnp.inf, jnp.where(disc >= 0, jnp.sqrt(jnp.abs(disc)), b)
+    )
+    braking = jnp.where(
+        dist >= brake_gap(v_plan, b, p.tau, dt), 0.0, jnp.minimum(brk, a_s)
+    )
     # look-ahead: SUMO stops registering after a link once it has seen past
     # its braking distance and 5 vehicle lengths of normal lanes
-    max_v = jnp.minimum(speed + a * dt, p.max_speed)
-    reach = max_v * dt + brake_gap(max_v, b, p.tau, dt)  # (M,)
-    k_link = net.conflict_index[route][:, leg].T  # (M_ego, M_foe)
-    prev_seen = d_foe - net.prev_lane_length[route][:, leg].T
-    prev_normal = (
-        net.normal_before[route][:, leg].T - normal_done(net, route, pos)[None, :]
-    )
-    prev_internal = (
-        net.internal_before[route][:, leg].T - internal_done(net, route, pos)[None, :]
-    )
-    stop_before = (prev_seen > reach[None, :]) & (
+    max_v = jnp.minimum(speed + a * dt, p.max_speed)[:, None]
+    reach = max_v * dt + brake_gap(max_v, b, p.tau, dt)  # (M, 1)
+    prev_seen = dist - net.prev_lane_length[route]
+    prev_normal = net.normal_before[route] - normal_done(net, route, pos)[:, None]
+    prev_internal = net.internal_before[route] - internal_done(net, route, pos)[:, None]
+    stop_before = (prev_seen > reach) & (
         prev_normal > jnp.maximum(5 * length, length + prev_internal)
     )
     k_now, _, _ = locate(net, route, pos)
-    registered = (k_link - 1 <= k_now[None, :]) | ~stop_before
-    # a vehicle still before its own yield line does not request later links
-    # (measured: SUMO registers them with willPass=0 until it is about to go)
-    held_back = seen > 0
-    will_pass = active & (v_plan > 1e-3) & ~held_back  # (M,)
-    foe = (
-        will_pass[None, :]
+    in_reach = (net.conflict_index[route] - 1 <= k_now[:, None]) | ~stop_before
+    ok = (
+        (active & (v_plan[:, 0] > 5e-5) & ~slowed)[:, None]
         & ~jnp.isnan(c_off)
-        & (d_foe > 0)
-        & registered
-        & (jnp.arange(m)[None, :] != jnp.arange(m)[:, None])
+        & (dist > 0)
+        & in_reach
     )
+    del g
+    return Registrations(ok, dist, a_t, l_t, a_s, l_s, braking)
 
-    # 3. impatience: the foe may brake at imp * decel if the ego arrives first
-    can_brake = (seen > brake_gap(speed, b, 0.0, dt)) | (speed < b * dt)
-    imp = jnp.clip(p.impatience + waiting_s / p.time_to_impatience, 0.0, 1.0)
-    imp = jnp.where(can_brake, imp, 1.0)[:, None]  # (M, 1)
+
+def entry_blocked(
+    net: NetArrays,
+    params: EnvParams,
+    route: jax.Array,
+    ego: Approach,
+    regs: Registrations,
+    imp: jax.Array,
+    step_label: jax.Array,
+    dt: float,
+    debug: bool = False,
+) -> jax.Array:
+    """MSLink::opened for each vehicle's entry link against registrations.
+
+    Args:
+        ego: each vehicle's own approach.
+        regs: the registrations to test against (this step's, or the previous
+            step's when a vehicle plans whether to request later links).
+        imp: (M,) the ego's impatience, 0..1.
+        step_label: SUMO's time label of the step being computed (t + dt).
+
+    Returns:
+        bool (M,): some registered foe blocks the vehicle's entry.
+    """
+    p = params
+    b = p.decel
+    m = route.shape[0]
+    leg = net.route_origin[route]  # (M,)
+    take = lambda x: x[:, leg].T  # noqa: E731  (M_ego, M_foe) on the ego's leg
+    ok, dist = take(regs.ok), take(regs.dist)
+    f_at, f_lt = take(regs.arrival), take(regs.leave)
+    f_ls, f_asb = take(regs.leave_speed), take(regs.braking_speed)
+    a_t, l_t = ego.arrival[:, None], ego.leave[:, None]
+    a_s, l_s = ego.arrival_speed[:, None], ego.leave_speed[:, None]
+    imp = imp[:, None]
+
+    # impatience: the foe may brake at imp * decel when the ego arrives first
+    # (MSLink::computeFoeArrivalTimeBraking; the ego's arrival rounded up)
+    a_t_up = jnp.ceil(a_t / dt - 1e-6) * dt
     mdec = jnp.maximum(imp * b, 1e-6)
-    gap_t = f_at - a_t[:, None]
+    gap_t = f_at - a_t_up
     dv = gap_t * mdec
     area = gap_t * dv / 2
-    v_foe = d_pos / jnp.maximum(f_at, 1e-3)
-    dist2 = d_pos - v_foe * (a_t[:, None] - dt)
+    v_foe = dist / jnp.maximum(f_at - step_label + dt, 1e-3)
+    dist2 = dist - v_foe * (a_t_up - step_label)
     foe_can_stop = v_foe**2 / (2 * mdec) <= dist2
     root = jnp.sqrt(jnp.maximum(4 * (v_foe - dv) ** 2 - 8 * mdec * area, 0.0))
     x = (v_foe - dv - root / 2) / mdec
-    same_step = jnp.floor(a_t[:, None] / dt) == jnp.floor(f_at / dt)
+    same_step = jnp.floor(a_t / dt + 1e-6) == jnp.floor(f_at / dt + 1e-6)
     f_at_brake = jnp.where(foe_can_stop, f_at + 30.0, f_at + x)
     asb_brake = jnp.where(foe_can_stop, 0.0, v_foe - (gap_t + x) * mdec)
-    use_imp = (imp > 0) & (a_t[:, None] < f_at) & ~same_step
+    use_imp = (imp > 0) & (a_t < f_at) & ~same_step
     f_at_imp = jnp.where(use_imp, (1 - imp) * f_at + imp * f_at_brake, f_at)
     f_asb = jnp.where(use_imp, asb_brake, f_asb)
 
-    # 4. MSLink::blockedByFoe with equal decelerations (unsafeMerge is <=)
+    # MSLink::blockedByFoe with equal decelerations (unsafeMerge is <=)
     tg = p.jm_timegap_minor
-    behind = f_lt < a_t[:, None]
-    blocked_behind = (a_t[:, None] - f_lt < tg) | (f_ls**2 <= a_s[:, None] ** 2)
-    ahead = f_at_imp > l_t[:, None] + tg
-    blocked_ahead = l_s[:, None] ** 2 <= f_asb**2
+    behind = f_lt < a_t
+    blocked_behind = (a_t - f_lt < tg) | (f_ls**2 <= a_s**2)
+    ahead = f_at_imp > l_t + tg
+    blocked_ahead = l_s**2 <= f_asb**2
     blocked = jnp.where(behind, blocked_behind, jnp.where(ahead, blocked_ahead, True))
-    if debug:
+    others = jnp.arange(m)[None, :] != jnp.arange(m)[:, None]
+    if debug:  # every intermediate, for tracing a decision
         return {k: v for k, v in locals().items() if isinstance(v, jax.Array)}
-    return active & (seen > 0) & jnp.any(foe & blocked, axis=1)
+    return jnp.any(ok & others & blocked, axis=1)

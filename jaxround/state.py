@@ -10,6 +10,8 @@
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 from flax import struct
@@ -110,6 +112,27 @@ class Schedule:
     is_av: jax.Array
 
 
+class Registrations(NamedTuple):
+    """Approaches registered on the ring's through link of every leg. (M, G).
+
+    Times are absolute (s); `ok` says the vehicle requests the link (it will
+    drive it, has not reached it, is within its look-ahead, wants to pass).
+    """
+
+    ok: jax.Array
+    dist: jax.Array
+    arrival: jax.Array
+    leave: jax.Array
+    arrival_speed: jax.Array
+    leave_speed: jax.Array
+    braking_speed: jax.Array
+
+    @classmethod
+    def empty(cls, m: int, g: int) -> Registrations:
+        z = jnp.zeros((m, g), jnp.float32)
+        return cls(jnp.zeros((m, g), bool), z, z, z, z, z, z)
+
+
 @struct.dataclass
 class EnvState:
     """State of one roundabout. M = max_vehicles slots, N scheduled vehicles.
@@ -137,6 +160,9 @@ class EnvState:
         queue_max: float (n_legs,) largest queue per leg.
         queue_samples: int, steps summed into `queue_sum` (within the horizon).
         overflow: int, insertions postponed because every slot was full.
+        registrations: the approaches each slot registered on the ring's
+            through links in the last step, (M, G) arrays (SUMO plans with
+            the previous step's registrations).
     """
 
     step: jax.Array
@@ -161,3 +187,4 @@ class EnvState:
     queue_max: jax.Array
     queue_samples: jax.Array
     overflow: jax.Array
+    registrations: Registrations
