@@ -82,6 +82,7 @@ def planned_speed(
         speed, v_leader, gap, v_lane, p.accel, p.decel, p.tau, p.min_gap, p.delta,
         dt, n_substeps,
     )  # fmt: skip
+    v_follow_own = v_follow
     is_link, link_gap, link_front_on_q, to_link = link_leaders(
         net, route, pos, active, p.length, p.min_gap
     )
@@ -185,9 +186,15 @@ def planned_speed(
     too_late = ~can_brake & (seen < brake_gap(speed, p.emergency_decel, 0.0, dt))
     far = beyond_vis & can_brake
     must_stop = (seen > 0) & ((blocked & ~too_late) | far)
-    v_stop = jnp.where(must_stop, v_wait, jnp.inf)
-
-    v_safe = jnp.minimum(jnp.minimum(v_follow, v_limits), jnp.minimum(v_free, v_stop))
+    # a vehicle that must stop at its line plans only up to it: leaders and
+    # lane limits beyond the line do not count (SUMO's vSafe = vWait)
+    leader_before_line = leader_back < net.yield_offset[route]
+    v_before_line = jnp.minimum(
+        jnp.minimum(jnp.minimum(v_wait, v_free), v_limits),
+        jnp.where(leader_before_line, v_follow_own, jnp.inf),
+    )
+    v_safe = jnp.minimum(jnp.minimum(v_follow, v_limits), v_free)
+    v_safe = jnp.where(must_stop, v_before_line, v_safe)
     v_next = idm.next_speed(
         speed, v_safe, v_lane, p.accel, p.decel, p.emergency_decel, dt, action_step
     )
