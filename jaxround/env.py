@@ -110,7 +110,8 @@ class RoundaboutEnv:
         )  # fmt: skip
         speed_factor = jnp.round((1.0 + params.speed_dev * z) * 1e4) / 1e4
         rank = jax.random.permutation(k_av, n)
-        n_av = jnp.floor(params.penetration * n + 0.5 + 1e-6)
+        # round(p * N) with halves up, as `n_av_at`; the margin absorbs float32
+        n_av = jnp.floor(params.penetration * n + 0.5 + 1e-3)
         route = jnp.asarray(self.network.route_index)[origin, dest]
         return Schedule(
             depart_s=depart.astype(jnp.float32),

@@ -208,6 +208,14 @@ def link_leaders(
     ]
     back_dist = jnp.where(back_dist < 0, back_dist + extra, back_dist)
     gap = to_crossing[:, None] - min_gap - back_dist
+    # once both are on their merging lanes, only the one nearer the crossing
+    # leads (the ring's through lane wins a tie): two never wait for each other
+    on_junction = (start - pos <= 0)[:, None]
+    foe_to_crossing = q_len - net.lane_converge[partner][:, None] - front_on_q
+    foe_is_ring = jnp.any(partner[:, None] == net.through_lane[None, :], axis=1)
+    nearer = (foe_to_crossing < to_crossing[:, None]) | (
+        (foe_to_crossing == to_crossing[:, None]) & foe_is_ring[:, None]
+    )
     m = pos.shape[0]
     is_link = (
         has_merge[:, None]
@@ -215,6 +223,7 @@ def link_leaders(
         & active[None, :]
         & ~jnp.isnan(q_off)
         & touches
+        & (~on_junction | nearer)
         & (jnp.arange(m)[None, :] != jnp.arange(m)[:, None])
     )
     return is_link, gap, front_on_q <= q_len, start - pos

@@ -163,7 +163,9 @@ def register(
         & in_reach
     )
     del g
-    return Registrations(ok, dist, a_t, l_t, a_s, l_s, braking)
+    fields = (dist, a_t, l_t, a_s, l_s, braking)
+    # keep the state finite where nothing is registered
+    return Registrations(ok, *(jnp.where(ok, x, 0.0) for x in fields))
 
 
 def entry_blocked(
