@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from jaxround.config import ConfigError, ScenarioConfig, load_config
+from jaxround.report import percent_label
 
 
 class UsageError(ValueError):
@@ -166,6 +167,8 @@ def cmd_sumo(args: argparse.Namespace) -> None:
 
 
 def cmd_run(args: argparse.Namespace) -> None:
+    from jaxround.metrics import class_metrics, mean_over_runs
+    from jaxround.parity import run_jax
     from jaxround.plots import plot_sweep
     from jaxround.report import write_json, write_tables
     from jaxround.schedule import make_schedule
@@ -178,38 +181,93 @@ def cmd_run(args: argparse.Namespace) -> None:
     penetrations = [0.0, 0.5, 1.0] if args.quick else [i / 10 for i in range(11)]
     started = time.time()
     write_scenario(cfg, make_schedule(cfg), out / "scenario")
-    print(f"[1/2] scenario files in {out / 'scenario'}", file=sys.stderr)
-    print(
-        f"[2/2] SUMO: {len(penetrations)} penetrations x {len(seeds)} seeds "
-        "(AVs drive the plain AV vType: no policy yet)",
-        file=sys.stderr,
+    say = (
+        (lambda msg: None)
+        if args.no_progress
+        else (lambda msg: print(msg, file=sys.stderr))
+    )
+    say(f"[1/3] scenario files in {out / 'scenario'}")
+    say(
+        f"[2/3] SUMO: {len(penetrations)} penetrations x {len(seeds)} seeds "
+        "(AVs drive the plain AV vType: no policy yet)"
     )
     sumo = sumo_sweep(
-        cfg,
-        penetrations,
-        seeds,
-        workers=args.workers,
+        cfg, penetrations, seeds, workers=args.workers,
         show_progress=not args.no_progress,
-    )
+    )  # fmt: skip
     means = {p: r["mean"] for p, r in sumo.items()}
+    say(f"[3/3] JAX: the all-human baseline on the same {len(seeds)} schedule(s)")
+    horizon = cfg.demand.duration_s
+    jax_runs = run_jax(cfg, seeds, penetration=0.0)
+    jax_means = {
+        0.0: mean_over_runs([class_metrics(r["records"], horizon) for r in jax_runs])
+    }
     tables = write_tables(means, out, "sumo")
+    write_tables(jax_means, out, "jax")
     plot_sweep(
-        {"sumo": means},
+        {"sumo": means, "jax": jax_means},
         out / "sweep.png",
-        f"{cfg.name}: SUMO, {len(seeds)} seed(s), AVs without policy",
+        f"{cfg.name}: {len(seeds)} seed(s), AVs without policy",
     )
     results = {
         "scenario": cfg.name,
         "config_fingerprint": cfg.fingerprint(),
         "seeds": seeds,
         "policy": None,
-        "sumo": {str(round(100 * p)): m for p, m in means.items()},
-        "jax": {},
+        "sumo": {percent_label(p): m for p, m in means.items()},
+        "jax": {percent_label(p): m for p, m in jax_means.items()},
         "wall_time_s": round(time.time() - started, 1),
     }
     write_json(results, out / "results.json")
     print(tables)
+    j0, s0 = jax_means[0.0]["hv"], means[0.0]["hv"]
+    print(
+        f"all-human baseline, mean crossing time: SUMO "
+        f"{s0['mean_crossing_time_s']:.2f} s, JAX {j0['mean_crossing_time_s']:.2f} s"
+    )
     print(f"wrote {out / 'results.json'}, tables and {out / 'sweep.png'}")
+
+
+def cmd_parity(args: argparse.Namespace) -> None:
+    from jaxround.parity import parity_report
+
+    cfg = load_config(args.config)
+    report = parity_report(
+        cfg, seeds_of(cfg, args.seeds), workers=args.workers,
+        show_progress=not args.no_progress,
+    )  # fmt: skip
+    if args.json:
+        print_json(report)
+        return
+    rows = [
+        ("mean crossing time (s)", "mean_crossing_time_s"),
+        ("CO2 (g/veh)", "co2_g_per_veh"),
+        ("fuel (g/veh)", "fuel_g_per_veh"),
+        ("arrived", "n_arrived"),
+    ]
+    print(f"{cfg.name}, HV only, seeds {report['seeds']}\n")
+    print("| metric | JAX | SUMO | rel. error |\n|---|---|---|---|")
+    for label, key in rows:
+        j, s_ = report["jax"]["all"][key], report["sumo"]["all"][key]
+        err = report["rel_err"][key]
+        print(f"| {label} | {j:.2f} | {s_:.2f} | {100 * err:.2f}% |")
+    print(
+        f"\nper-vehicle crossing time: median |error| "
+        f"{report['per_vehicle_median_abs_err_s']:.2f} s, "
+        f"90th percentile {report['per_vehicle_p90_abs_err_s']:.2f} s, "
+        f"exactly equal {100 * report['per_vehicle_exact_share']:.1f}%"
+    )
+
+
+def cmd_bench(args: argparse.Namespace) -> None:
+    from jaxround.bench import format_benchmark, run_benchmark
+
+    cfg = load_config(args.config)
+    result = run_benchmark(cfg, progress=not args.no_progress)
+    if args.json:
+        print_json(result)
+    else:
+        print(format_benchmark(result))
 
 
 # ------------------------------------------------------------------ parser
@@ -250,6 +308,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_sumo)
+
+    p = sub.add_parser("parity", help="JAX against SUMO on the same HV-only schedules")
+    common(p)
+    p.add_argument("--seeds", type=positive_int, default=3, help="number of seeds")
+    p.add_argument(
+        "--workers",
+        type=positive_int,
+        default=None,
+        help="SUMO processes side by side (default: CPUs)",
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_parity)
+
+    p = sub.add_parser("bench", help="vehicle-steps per second: JAX batches vs SUMO")
+    common(p)
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("run", help="the main job on a scenario: tables, plots, results")
     common(p)

@@ -1,0 +1,122 @@
+"""The benchmark on a small scenario: the shape of its result, not its timings."""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+
+from jaxround.bench import batch_schedules, format_benchmark, run_benchmark
+from jaxround.env import make
+from jaxround.schedule import make_schedule
+from tests.conftest import small_config
+
+BATCHES = (1, 4)
+SLOT_SIZES = (16, 32)
+
+
+@pytest.fixture(scope="module")
+def result() -> dict[str, Any]:
+    # M = 16 at batch 4 serves both the batch table and the slot table: three
+    # compilations in all.
+    return run_benchmark(
+        small_config(n_vehicles=150, duration_s=600.0),
+        batches=BATCHES,
+        sim_seconds=5.0,
+        max_vehicles=16,
+        slot_sizes=SLOT_SIZES,
+        progress=False,
+        slot_batch=4,
+    )
+
+
+def _positive(x: Any) -> bool:
+    return isinstance(x, int | float) and math.isfinite(x) and x > 0
+
+
+@pytest.mark.sumo
+def test_result_has_the_documented_shape(result: dict[str, Any]) -> None:
+    for key in (
+        "sumo_vehicle_steps_per_s",
+        "jax",
+        "best_ratio_vs_sumo",
+        "slots",
+        "machine",
+        "sim_seconds",
+    ):
+        assert key in result
+    assert result["sim_seconds"] == pytest.approx(5.0)
+    assert [row["batch"] for row in result["jax"]] == list(BATCHES)
+    for row in result["jax"]:
+        for key in ("vehicle_steps_per_s", "steps_per_s", "compile_s"):
+            assert _positive(row[key]), (key, row)
+    assert [row["max_vehicles"] for row in result["slots"]] == list(SLOT_SIZES)
+    for row in result["slots"]:
+        assert _positive(row["us_per_step_per_roundabout"])
+        assert _positive(row["us_per_vehicle_step"])
+    machine = result["machine"]
+    assert machine["jax_backend"] == "cpu"
+    assert machine["jax_devices"]
+    assert machine["sumo_version"].startswith("SUMO 1.28")
+    assert machine["cpu_count"] >= 1
+    json.dumps(result)  # plain data, as `jaxround bench --json` prints it
+
+
+@pytest.mark.sumo
+def test_throughputs_are_consistent(result: dict[str, Any]) -> None:
+    sumo = result["sumo_vehicle_steps_per_s"]
+    assert _positive(sumo)
+    # the network is not empty in the timed window, in either simulator
+    assert result["sumo"]["vehicle_steps"] > 0
+    best = max(row["vehicle_steps_per_s"] for row in result["jax"])
+    assert result["best_ratio_vs_sumo"] == pytest.approx(best / sumo)
+    steps = result["steps"]
+    for row in result["jax"]:
+        assert 0 < row["vehicle_steps"] <= row["batch"] * steps * 16
+        # vehicle-steps and roundabout-steps are timed by the same runs
+        ratio = row["vehicle_steps_per_s"] / row["steps_per_s"]
+        assert ratio == pytest.approx(row["vehicle_steps"] / (row["batch"] * steps))
+        assert row["overflow"] == 0
+    # roundabout 0 runs SUMO's schedule: both see a populated network
+    assert result["jax"][0]["mean_vehicles"] > 0
+
+
+@pytest.mark.sumo
+def test_format_is_a_markdown_table(result: dict[str, Any]) -> None:
+    text = format_benchmark(result)
+    assert "| SUMO (libsumo) | 1 |" in text
+    for b in BATCHES:
+        assert f"| JAX | {b} |" in text
+    for m in SLOT_SIZES:
+        assert f"| {m} |" in text
+    assert f"{result['best_ratio_vs_sumo']:.2f}x" in text
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"batches": ()},
+        {"batches": (0,)},
+        {"sim_seconds": 0.0},
+        {"max_vehicles": 0},
+        {"slot_sizes": (16, 2.5)},
+    ],
+)
+def test_bad_arguments_fail_before_running(kwargs: dict[str, Any]) -> None:
+    with pytest.raises(ValueError):
+        run_benchmark(small_config(), progress=False, **kwargs)
+
+
+def test_batch_schedules_stack_the_seeds_schedules() -> None:
+    cfg = small_config(n_vehicles=40, duration_s=60.0)
+    env, _ = make(cfg, max_vehicles=8)
+    batch = batch_schedules(env, 3, seed=5)
+    for i in range(3):
+        one = env.schedule_from_numpy(make_schedule(cfg, seed=5 + i))
+        for name in ("depart_s", "route", "origin", "speed_factor", "is_av"):
+            got, want = getattr(batch, name)[i], getattr(one, name)
+            assert got.dtype == want.dtype
+            np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
