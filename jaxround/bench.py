@@ -95,7 +95,7 @@ def run_benchmark(
     cfg: ScenarioConfig,
     batches: Sequence[int] = DEFAULT_BATCHES,
     sim_seconds: float = DEFAULT_SIM_SECONDS,
-    max_vehicles: int = 64,
+    max_vehicles: int = 32,
     slot_sizes: Sequence[int] = DEFAULT_SLOT_SIZES,
     progress: bool = True,
     *,

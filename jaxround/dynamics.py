@@ -27,12 +27,15 @@ from jaxround.junction import (
     brake_gap,
     entry_approach,
     entry_blocked,
+    entry_candidates,
     register,
 )
 from jaxround.state import EnvParams, Registrations
 
 #: Speed below which SUMO counts a vehicle as waiting / halting (m/s).
 HALTING_SPEED = 0.1
+#: Vehicles per leg whose entry is tested each step (the nearest to the line).
+ENTRY_CANDIDATES = 2
 #: departPos="base": the front starts this far beyond the vehicle length (m).
 DEPART_OFFSET = 0.1
 #: A vehicle arrives when its front is this close to the end of its route (m).
@@ -86,19 +89,16 @@ def planned_speed(
     is_link, link_gap, link_front_on_q, to_link = link_leaders(
         net, route, pos, active, p.length, p.min_gap
     )
+    # the nearest link leader binds (IDM's speed falls with the gap)
+    link_gap = jnp.where(is_link, link_gap, jnp.inf)
+    nearest = jnp.argmin(link_gap, axis=1)  # (M,)
+    has_link = jnp.isfinite(jnp.min(link_gap, axis=1))
+    link_gap = jnp.where(has_link, jnp.min(link_gap, axis=1), 0.0)
+    link_front_on_q = jnp.take_along_axis(link_front_on_q, nearest[:, None], 1)[:, 0]
     v_link = idm.idm_follow_speed(
-        speed[:, None],
-        speed[None, :],
-        link_gap + p.min_gap,
-        v_lane[:, None],
-        p.accel,
-        p.decel,
-        p.tau,
-        p.min_gap,
-        p.delta,
-        dt,
-        n_substeps,
-    )  # fmt: skip  (M, M)
+        speed, speed[nearest], link_gap + p.min_gap, v_lane, p.accel, p.decel, p.tau,
+        p.min_gap, p.delta, dt, n_substeps,
+    )  # fmt: skip
 
     # 2. speed limits of the lanes ahead (and the free road on this one)
     starts = net.route_lane_start[route]  # (M, K)
@@ -137,10 +137,10 @@ def planned_speed(
         n_substeps, action_step,
     )  # fmt: skip
     v_link_stop = jnp.where(to_link > 0, v_link_stop, 0.0)
-    v_link = jnp.where(link_gap >= 0, v_link, v_link_stop[:, None])
-    floor = (seen > 0)[:, None] & link_front_on_q
-    v_link = jnp.where(floor, jnp.maximum(v_link, v_wait[:, None]), v_link)
-    v_link = jnp.min(jnp.where(is_link, v_link, jnp.inf), axis=1)  # (M,)
+    v_link = jnp.where(link_gap >= 0, v_link, v_link_stop)
+    floor = (seen > 0) & link_front_on_q
+    v_link = jnp.where(floor, jnp.maximum(v_link, v_wait), v_link)
+    v_link = jnp.where(has_link, v_link, jnp.inf)  # (M,)
     leave_cap = jnp.where(seen > 0, v_link, jnp.inf)
     v_follow = jnp.minimum(v_follow, v_link)
     can_brake = (seen > brake_gap(speed, p.decel, 0.0, dt)) | (speed < p.decel * dt)
@@ -158,7 +158,20 @@ def planned_speed(
         + (net.entry_internal_length[leg] + p.length)
         / jnp.maximum(plan.arrival_speed, 1e-3)
     )
-    closed_plan = entry_blocked(net, p, route, plan, prev_regs, imp, step_label, dt)
+    # only the vehicles nearest to each line can be within its visibility
+    cand, cand_ok = entry_candidates(net, route, pos, active, ENTRY_CANDIDATES)
+    pick = lambda x: x[cand]  # noqa: E731
+    m = pos.shape[0]
+
+    def per_slot(flags: jax.Array) -> jax.Array:
+        return jnp.zeros(m, bool).at[cand].max(flags & cand_ok)
+
+    closed_plan = per_slot(
+        entry_blocked(
+            net, p, route[cand], jax.tree.map(pick, plan), prev_regs, imp[cand],
+            step_label, dt, ego_slot=cand,
+        )
+    )  # fmt: skip
     beyond_vis = seen > net.entry_visibility[leg]
     slowed = (
         before_line
@@ -178,9 +191,12 @@ def planned_speed(
     ego = entry_approach(net, p, route, pos, speed, speed_factor, v_lane,
                          leave_cap, t, dt)  # fmt: skip
     imp_now = jnp.where(can_brake, imp, 1.0)
-    blocked = before_line & entry_blocked(
-        net, p, route, ego, regs, imp_now, step_label, dt
-    )
+    blocked = before_line & per_slot(
+        entry_blocked(
+            net, p, route[cand], jax.tree.map(pick, ego), regs, imp_now[cand],
+            step_label, dt, ego_slot=cand,
+        )
+    )  # fmt: skip
     if debug:
         return {k: v for k, v in locals().items() if isinstance(v, jax.Array)}
     too_late = ~can_brake & (seen < brake_gap(speed, p.emergency_decel, 0.0, dt))

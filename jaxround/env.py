@@ -42,7 +42,7 @@ class RoundaboutEnv:
         self,
         cfg: ScenarioConfig,
         network: CompiledNetwork,
-        max_vehicles: int = 64,
+        max_vehicles: int = 32,
         episode_s: float | None = None,
     ) -> None:
         if network.n_legs != cfg.n_legs:
@@ -363,7 +363,7 @@ class RoundaboutEnv:
 
 def make(
     scenario: str | Path | ScenarioConfig = "milan",
-    max_vehicles: int = 64,
+    max_vehicles: int = 32,
     episode_s: float | None = None,
     workdir: str | Path | None = None,
 ) -> tuple[RoundaboutEnv, EnvParams]:

@@ -177,25 +177,31 @@ def entry_blocked(
     imp: jax.Array,
     step_label: jax.Array,
     dt: float,
+    ego_slot: jax.Array | None = None,
     debug: bool = False,
 ) -> jax.Array:
-    """MSLink::opened for each vehicle's entry link against registrations.
+    """MSLink::opened for the entry links of E egos against registrations.
 
     Args:
-        ego: each vehicle's own approach.
-        regs: the registrations to test against (this step's, or the previous
-            step's when a vehicle plans whether to request later links).
-        imp: (M,) the ego's impatience, 0..1.
+        route: (E,) the egos' routes.
+        ego: the egos' own approaches, (E,).
+        regs: the registrations to test against, (M, G) (this step's, or the
+            previous step's when a vehicle plans whether to request later
+            links).
+        imp: (E,) the egos' impatience, 0..1.
         step_label: SUMO's time label of the step being computed (t + dt).
+        ego_slot: (E,) the egos' slots (a vehicle is no foe of itself);
+            default: the egos are all M slots in order.
 
     Returns:
-        bool (M,): some registered foe blocks the vehicle's entry.
+        bool (E,): some registered foe blocks the ego's entry.
     """
     p = params
     b = p.decel
-    m = route.shape[0]
-    leg = net.route_origin[route]  # (M,)
-    take = lambda x: x[:, leg].T  # noqa: E731  (M_ego, M_foe) on the ego's leg
+    m = regs.ok.shape[0]
+    ego_slot = jnp.arange(route.shape[0]) if ego_slot is None else ego_slot
+    leg = net.route_origin[route]  # (E,)
+    take = lambda x: x[:, leg].T  # noqa: E731  (E, M) on the ego's leg
     ok, dist = take(regs.ok), take(regs.dist)
     f_at, f_lt = take(regs.arrival), take(regs.leave)
     f_ls, f_asb = take(regs.leave_speed), take(regs.braking_speed)
@@ -229,7 +235,28 @@ def entry_blocked(
     ahead = f_at_imp > l_t + tg
     blocked_ahead = l_s**2 <= f_asb**2
     blocked = jnp.where(behind, blocked_behind, jnp.where(ahead, blocked_ahead, True))
-    others = jnp.arange(m)[None, :] != jnp.arange(m)[:, None]
+    others = jnp.arange(m)[None, :] != ego_slot[:, None]
     if debug:  # every intermediate, for tracing a decision
         return {k: v for k, v in locals().items() if isinstance(v, jax.Array)}
     return jnp.any(ok & others & blocked, axis=1)
+
+
+def entry_candidates(
+    net: NetArrays, route: jax.Array, pos: jax.Array, active: jax.Array, per_leg: int
+) -> tuple[jax.Array, jax.Array]:
+    """The vehicles nearest to each yield line, the only ones whose entry test
+    can matter (vehicles keep 7.5 m apart; the visibility distance is 9 m).
+
+    Returns:
+        (slots, valid): int (G * per_leg,), bool (G * per_leg,).
+    """
+    g = net.through_length.shape[0]
+    seen = net.yield_offset[route] - pos  # (M,)
+    mine = (
+        active[None, :]
+        & (seen > 0)[None, :]
+        & (net.route_origin[route][None, :] == jnp.arange(g)[:, None])
+    )  # (G, M)
+    score = jnp.where(mine, -seen[None, :], -jnp.inf)
+    top, slots = jax.lax.top_k(score, per_leg)  # (G, per_leg)
+    return slots.reshape(-1), jnp.isfinite(top).reshape(-1)

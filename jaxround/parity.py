@@ -26,7 +26,7 @@ def run_jax(
     cfg: ScenarioConfig,
     seeds: Sequence[int],
     penetration: float = 0.0,
-    max_vehicles: int = 64,
+    max_vehicles: int = 32,
 ) -> list[dict[str, Any]]:
     """Run the schedules of `seeds` in JAX, all seeds in one vmapped batch.
 

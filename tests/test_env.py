@@ -352,7 +352,7 @@ def double_demand() -> tuple[Any, EnvState, dict[str, Any]]:
 
     Over capacity, the vehicles queue before insertion; about 30 are ever on
     the network at once, so DOUBLE_SLOTS slots (compiled faster than the
-    default 64) leave room, and a full slot would only postpone insertions.
+    default 32) leave room, and a full slot would only postpone insertions.
     """
     d = builtin_dict("milan")
     d["demand"]["n_vehicles"] *= 2
@@ -371,7 +371,7 @@ def test_make_milan_defaults_and_shapes() -> None:
     env, params = make("milan")
     cfg = load_config("milan")
     assert isinstance(env, RoundaboutEnv) and isinstance(params, EnvParams)
-    assert env.max_vehicles == 64 and env.n_schedule == cfg.demand.n_vehicles == 1540
+    assert env.max_vehicles == 32 and env.n_schedule == cfg.demand.n_vehicles == 1540
     assert env.n_legs == 4 and env.network.n_routes == 12
     assert env.episode_s == cfg.demand.duration_s + 300.0
     assert env.episode_steps == 7800
@@ -380,15 +380,15 @@ def test_make_milan_defaults_and_shapes() -> None:
     key = jax.random.PRNGKey(0)
     # shapes without compiling: trace only
     obs, state = jax.eval_shape(env.reset, key, params)
-    assert obs.shape == (64, N_BASIC_FEATURES) == (64, 6)
-    assert state.pos.shape == (64,) and state.inserted.shape == (1540,)
+    assert obs.shape == (32, N_BASIC_FEATURES) == (32, 6)
+    assert state.pos.shape == (32,) and state.inserted.shape == (1540,)
     assert state.schedule.depart_s.shape == (1540,)
-    action = jnp.zeros((64, 2))
+    action = jnp.zeros((32, 2))
     obs2, state2, reward, done, info = jax.eval_shape(
         env.step, key, state, action, params
     )
-    assert obs2.shape == (64, 6) and obs2.dtype == jnp.float32
-    assert reward.shape == (64,) and reward.dtype == jnp.float32
+    assert obs2.shape == (32, 6) and obs2.dtype == jnp.float32
+    assert reward.shape == (32,) and reward.dtype == jnp.float32
     assert done.shape == () and done.dtype == jnp.bool_
     assert {"terminated", "truncated", "overflow", "arrived", "n_active"} <= set(info)
     assert jax.tree.map(lambda x: (x.shape, x.dtype), state2) == jax.tree.map(
