@@ -42,6 +42,28 @@ DEPART_OFFSET = 0.1
 ARRIVAL_EPS = 0.1
 
 
+def _rearmost_on(front, back, pos, active, seg_start, seg_end):
+    """The rearmost vehicle with any part on [seg_start, seg_end) of each
+    vehicle's route, ahead of it (SUMO's getLastVehicleInformation of a lane).
+
+    Args: front, back (M_i, M_j) projections; seg_start, seg_end (M_i, S).
+    Returns: (has, j, gap) (M_i, S): gap bumper to bumper.
+    """
+    m = pos.shape[0]
+    others = jnp.arange(m)[None, :] != jnp.arange(m)[:, None]
+    ok = active[None, :] & active[:, None] & others & (front > pos[:, None])
+    ok = ok & ~jnp.isnan(front)
+    touch = (
+        ok[:, :, None]
+        & (front[:, :, None] > seg_start[:, None, :])
+        & (back[:, :, None] < seg_end[:, None, :])
+    )  # (M_i, M_j, S)
+    b = jnp.where(touch, back[:, :, None], jnp.inf)
+    j = jnp.argmin(b, axis=1)
+    bmin = jnp.min(b, axis=1)
+    return jnp.isfinite(bmin), j, bmin - pos[:, None]
+
+
 def planned_speed(
     net: NetArrays,
     params: EnvParams,
@@ -113,7 +135,8 @@ def planned_speed(
         p.delta, dt, n_substeps,
     )  # fmt: skip
     v_limits = jnp.maximum(v_limits, speed[:, None] - p.decel * dt)
-    v_limits = jnp.min(jnp.where(later, v_limits, jnp.inf), axis=1)
+    v_limits_k = jnp.where(later, v_limits, jnp.inf)  # (M, K)
+    v_limits = jnp.min(v_limits_k, axis=1)
     to_end = net.route_length[route] - pos
     v_free = idm.idm_free_speed(
         speed, v_lane, p.accel, p.decel, p.tau, p.min_gap, p.delta, dt, n_substeps,
@@ -150,8 +173,28 @@ def planned_speed(
     # planMove: a vehicle that could still stop and would find its entry
     # closed (judged on the previous step's registrations) withdraws its
     # requests on later links; so does one still beyond the visibility point
+    leader_back = jnp.where(
+        leader >= 0,
+        jnp.take_along_axis(back, jnp.maximum(leader, 0)[:, None], 1)[:, 0],
+        jnp.inf,
+    )
+
+    def fol(v, v_l, gap):  # SUMO's futureVSafe: followSpeed from the leave speed
+        return idm.idm_follow_speed(
+            v, v_l, gap, v_lane[:, None] if v.ndim == 2 else v_lane, p.accel,
+            p.decel, p.tau, p.min_gap, p.delta, dt, n_substeps,
+        )  # fmt: skip
+
+    # leaders on the approach cap the entry's arrival speed (adaptToLeader)
+    appr_cap = jnp.where(leader_back < net.yield_offset[route], v_follow_own, jnp.inf)
+    e_start = net.yield_offset[route][:, None]
+    e_has, e_j, e_gap = _rearmost_on(
+        front, back, pos, active, e_start,
+        e_start + net.entry_internal_length[leg][:, None],
+    )  # fmt: skip
+    entry_follow = (e_has[:, 0], speed[e_j[:, 0]], e_gap[:, 0], fol)
     plan = entry_approach(net, p, route, pos, speed, speed_factor, v_lane,
-                          jnp.inf, t, dt)  # fmt: skip
+                          jnp.inf, t, dt, appr_cap)  # fmt: skip
     plan = plan._replace(leave_speed=plan.arrival_speed)
     plan = plan._replace(
         leave=plan.arrival
@@ -180,16 +223,85 @@ def planned_speed(
     )
     v_chain = jnp.minimum(jnp.minimum(speed + p.accel * dt, v_lane), v_follow)
     v_chain = jnp.minimum(v_chain, jnp.minimum(v_limits, v_free))
-    leader_back = jnp.where(
-        leader >= 0,
-        jnp.take_along_axis(back, jnp.maximum(leader, 0)[:, None], 1)[:, 0],
-        jnp.inf,
+    c_off = net.conflict_offset[route]  # (M, G)
+    before = later[:, :, None] & (starts[:, :, None] < c_off[:, None, :])
+    lim_before = jnp.min(jnp.where(before, v_limits_k[:, :, None], jnp.inf), axis=1)
+    merge_start = pos + to_link
+    link_before = merge_start[:, None] < c_off
+    v_pre = jnp.minimum(jnp.minimum(speed + p.accel * dt, v_lane)[:, None], lim_before)
+    v_pre = jnp.where(link_before, jnp.minimum(v_pre, v_link[:, None]), v_pre)
+    prev_start = c_off - net.prev_lane_length[route]
+    lead_early = leader_back[:, None] < prev_start
+    lead_ring = ~lead_early & (leader_back[:, None] < c_off)
+    v_pre = jnp.where(lead_early, jnp.minimum(v_pre, v_follow_own[:, None]), v_pre)
+    ring_cap = jnp.where(lead_ring, v_follow_own[:, None], jnp.inf)
+    # every lane of the look-ahead: its rearmost vehicle, and the link
+    # leaders where it merges (SUMO's planMoveInternal loop)
+    lanes_k = net.route_lanes[route]
+    lens_k = net.lane_length[jnp.maximum(lanes_k, 0)]
+    ends_k = starts + lens_k  # (M, K), inf padded
+    l_has, l_j, l_gap = _rearmost_on(front, back, pos, active, starts, ends_k)
+    f_k = idm.idm_follow_speed(
+        speed[:, None], speed[l_j], l_gap, v_lane[:, None], p.accel, p.decel,
+        p.tau, p.min_gap, p.delta, dt, n_substeps,
+    )  # fmt: skip
+    mine = (jnp.arange(starts.shape[1])[None, :] >= k[:, None]) & (lanes_k >= 0)
+    f_k = jnp.where(l_has & mine, f_k, jnp.inf)
+    ends_g = ends_k[:, :, None]
+    c3 = c_off[:, None, :]
+    early = ends_g < c3 - net.prev_lane_length[route][:, None, :] + 1e-3
+    prev_l = jnp.abs(ends_g - c3) < 1e-3
+    v_pre = jnp.minimum(v_pre, jnp.min(jnp.where(early, f_k[:, :, None], jnp.inf), 1))
+    ring_cap = jnp.minimum(
+        ring_cap, jnp.min(jnp.where(prev_l, f_k[:, :, None], jnp.inf), 1)
     )
+    vl_k = [jnp.full(m, jnp.inf)] * starts.shape[1]
+    for kk in net.merge_positions:  # only lanes that merge can have link leaders
+        il, lg, fq, tl = link_leaders(
+            net, route, pos, active, p.length, p.min_gap, km_fixed=kk
+        )
+        # the nearest link leader binds (IDM's speed falls with the gap)
+        lg = jnp.where(il, lg, jnp.inf)
+        jn = jnp.argmin(lg, axis=1)
+        has = jnp.isfinite(jnp.min(lg, axis=1))
+        lg = jnp.where(has, jnp.min(lg, axis=1), 0.0)
+        fq = jnp.take_along_axis(fq, jn[:, None], 1)[:, 0]
+        vv = idm.idm_follow_speed(
+            speed, speed[jn], lg + p.min_gap, v_lane, p.accel, p.decel, p.tau,
+            p.min_gap, p.delta, dt, n_substeps,
+        )  # fmt: skip
+        vs = idm.idm_stop_speed(
+            speed, tl - STOP_OFFSET, v_lane, p.accel, p.decel, p.tau, p.delta,
+            dt, n_substeps, action_step,
+        )  # fmt: skip
+        vs = jnp.where(tl > 0, vs, 0.0)
+        vv = jnp.where(lg >= 0, vv, vs)
+        fl = (seen > 0) & fq & (kk == 1)
+        vv = jnp.where(fl, jnp.maximum(vv, v_wait), vv)
+        vl_k[kk] = jnp.where(has, vv, jnp.inf)
+    vl_k = jnp.stack(vl_k, 1)  # (M, K) link leaders where lane k merges
+    m_before = starts[:, :, None] < c3 - 1e-3
+    v_pre = jnp.minimum(
+        v_pre, jnp.min(jnp.where(m_before, vl_k[:, :, None], jnp.inf), 1)
+    )
+    via_k = jnp.abs(starts[:, :, None] - c3) < 1e-3
+    via_cap = jnp.min(jnp.where(via_k, vl_k[:, :, None], jnp.inf), 1)
+    reg_kw = dict(v_pre=v_pre, ring_cap=ring_cap)
+    t_has, t_j, t_gap = _rearmost_on(
+        front, back, pos, active, c_off,
+        c_off + net.through_length[None, :],
+    )  # fmt: skip
+    reg_kw["leave_follow"] = (t_has, speed[t_j], t_gap, fol)
+    # link leaders at the exit of the via lane lower its leave speed
+    reg_kw["leave_cap"] = via_cap
     regs = register(net, p, route, pos, speed, speed_factor, v_chain, v_follow,
-                    leader_back, active, slowed, t, dt)  # fmt: skip
+                    leader_back, active, slowed, t, dt, **reg_kw)  # fmt: skip
+    # link leaders at every merge of the look-ahead, not only the next one
+    v_follow = jnp.minimum(v_follow, jnp.min(vl_k, axis=1))
     # executeMove: the entry is tested against this step's registrations
     ego = entry_approach(net, p, route, pos, speed, speed_factor, v_lane,
-                         leave_cap, t, dt)  # fmt: skip
+                         leave_cap, t, dt, appr_cap,
+                         entry_follow)  # fmt: skip
     imp_now = jnp.where(can_brake, imp, 1.0)
     blocked = before_line & per_slot(
         entry_blocked(

@@ -45,6 +45,7 @@ class NetArrays:
     internal_cum: jax.Array  # (R, K) metres of internal lanes before lane k
     conflict_index: jax.Array  # (R, G) route index k of the through lane at leg g
     merge_index: jax.Array  # (R, K) first merging internal lane at or after k, -1
+    merge_positions: tuple[int, ...]  # route indices k where some route merges
     prev_lane_length: jax.Array  # (R, G) length of the lane before it
     normal_before: jax.Array  # (R, G) normal metres up to the link before it
     internal_before: jax.Array  # (R, G) internal metres up to the link before it
@@ -105,6 +106,7 @@ class NetArrays:
             internal_cum=jnp.asarray(internal_cum, f),
             conflict_index=jnp.asarray(conflict_index),
             merge_index=jnp.asarray(merge_index),
+            merge_positions=tuple(int(k) for k in np.nonzero(merges.any(axis=0))[0]),
             prev_lane_length=jnp.asarray(net.lane_length[prev_lane], f),
             normal_before=jnp.asarray(normal_cum[rows, conflict_index - 1], f),
             internal_before=jnp.asarray(internal_cum[rows, conflict_index - 1], f),
@@ -173,6 +175,7 @@ def link_leaders(
     active: jax.Array,
     length: jax.Array,
     min_gap: jax.Array,
+    km_fixed: int | None = None,
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Vehicles on the lane that merges with each vehicle's next merging lane.
 
@@ -190,6 +193,11 @@ def link_leaders(
     """
     k, _, _ = locate(net, route, pos)
     km = jnp.take_along_axis(net.merge_index[route], k[:, None], axis=1)[:, 0]  # (M,)
+    if km_fixed is not None:  # the merge at route lane km_fixed, if it merges
+        kf = jnp.full_like(km, km_fixed)
+        lane_f = jnp.take_along_axis(net.route_lanes[route], kf[:, None], axis=1)[:, 0]
+        ok_f = (lane_f >= 0) & (net.lane_partner[jnp.maximum(lane_f, 0)] >= 0)
+        km = jnp.where(ok_f & (kf >= k), kf, -1)
     has_merge = km >= 0
     km = jnp.maximum(km, 0)
     mine = jnp.take_along_axis(net.route_lanes[route], km[:, None], axis=1)[:, 0]

@@ -63,6 +63,8 @@ def entry_approach(
     leave_cap: jax.Array,
     t: jax.Array,
     dt: float,
+    v_cap: jax.Array | float = jnp.inf,
+    leave_follow: tuple | None = None,
 ) -> Approach:
     """Arrival at the yield line and leave past the entry, as SUMO registers it.
 
@@ -73,16 +75,23 @@ def entry_approach(
     p = params
     a, b = p.accel, p.decel
     leg = net.route_origin[route]
-    v_plan = jnp.minimum(speed + a * dt, v_lane)  # Euler plans with the next speed
+    v_pre = jnp.minimum(speed + a * dt, v_lane)  # Euler plans with the next speed
     seen = net.yield_offset[route] - pos
     link_len = net.entry_internal_length[leg]
     v_link = jnp.minimum(
         net.lane_speed[net.route_lanes[route, 1]] * speed_factor, p.max_speed
     )
-    a_s = jnp.minimum(jnp.sqrt(2 * a * jnp.maximum(seen, 0) + v_plan**2), v_link)
+    # vLinkPass: accelerate over the approach (capped at the approach lane's
+    # limit), then lowered by the leaders on the approach (adaptToLeader)
+    a_s = jnp.minimum(jnp.sqrt(2 * a * jnp.maximum(seen, 0) + v_pre**2), v_lane)
+    a_s = jnp.minimum(a_s, v_cap)
+    v_plan = jnp.minimum(v_pre, v_cap)
     l_s = jnp.minimum(
         jnp.minimum(v_link, jnp.sqrt(2 * a * link_len + a_s**2)), leave_cap
     )
+    if leave_follow is not None:  # futureVSafe of a leader on the entry lane
+        has, v_l, gap, fol = leave_follow
+        l_s = jnp.where(has, jnp.minimum(l_s, fol(l_s, v_l, gap)), l_s)
     a_t = t + minimal_arrival_time(jnp.maximum(seen, 0), v_plan, a_s, a, b)
     l_t = a_t + (link_len + p.length) / jnp.maximum(0.5 * (a_s + l_s), 1e-3)
     return Approach(seen, a_t, l_t, a_s, l_s)
@@ -102,6 +111,10 @@ def register(
     slowed: jax.Array,
     t: jax.Array,
     dt: float,
+    v_pre: jax.Array | None = None,
+    ring_cap: jax.Array | None = None,
+    leave_cap: jax.Array | None = None,
+    leave_follow: tuple | None = None,
 ) -> Registrations:
     """Every vehicle's registration on the through link of every leg (SUMO's
     MSVehicle::setApproachingForAllLinks), for the step starting at `t`.
@@ -126,14 +139,26 @@ def register(
     v_thr = jnp.minimum(
         net.lane_speed[net.through_lane][None, :] * speed_factor[:, None], p.max_speed
     )  # (M, G)
-    v_plan = v_plan[:, None]  # (M, 1)
     d_pos = jnp.maximum(dist, 0.0)
     # the arrival speed accelerates over the lane before the link only
     on_last_lane = jnp.minimum(d_pos, net.prev_lane_length[route])
-    a_s = jnp.minimum(jnp.sqrt(2 * a * on_last_lane + v_plan**2), v_thr)
-    leader_first = leader_back[:, None] < c_off
-    a_s = jnp.where(leader_first, jnp.minimum(a_s, leader_cap[:, None]), a_s)
+    if v_pre is None:
+        v_plan = v_plan[:, None]  # (M, 1)
+        a_s = jnp.minimum(jnp.sqrt(2 * a * on_last_lane + v_plan**2), v_thr)
+        leader_first = leader_back[:, None] < c_off
+        a_s = jnp.where(leader_first, jnp.minimum(a_s, leader_cap[:, None]), a_s)
+    else:
+        # SUMO's running look-ahead speed at each link: only constraints
+        # before the link; leaders on the lane before it cap vLinkPass
+        a_s = jnp.minimum(jnp.sqrt(2 * a * on_last_lane + v_pre**2), v_thr)
+        a_s = jnp.minimum(a_s, ring_cap)
+        v_plan = jnp.minimum(v_pre, ring_cap)
     l_s = jnp.minimum(v_thr, jnp.sqrt(2 * a * through + a_s**2))
+    if leave_cap is not None:
+        l_s = jnp.minimum(l_s, leave_cap)
+    if leave_follow is not None:  # futureVSafe of leaders on the via lane
+        has, v_l, gap, fol = leave_follow
+        l_s = jnp.where(has, jnp.minimum(l_s, fol(l_s, v_l, gap)), l_s)
     a_t = t + minimal_arrival_time(d_pos, v_plan, a_s, a, b)
     l_t = a_t + (through + length) / jnp.maximum(0.5 * (a_s + l_s), 1e-3)
     # arrival speed if it brakes (MSCFModel::getMinimalArrivalSpeedEuler)
@@ -157,7 +182,7 @@ def register(
     k_now, _, _ = locate(net, route, pos)
     in_reach = (net.conflict_index[route] - 1 <= k_now[:, None]) | ~stop_before
     ok = (
-        (active & (v_plan[:, 0] > 5e-5) & ~slowed)[:, None]
+        (active[:, None] & (v_plan > 5e-5) & ~slowed[:, None])
         & ~jnp.isnan(c_off)
         & (dist > 0)
         & in_reach

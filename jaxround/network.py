@@ -224,8 +224,9 @@ def compile_network(net_file: str | Path, n_legs: int | None = None) -> Compiled
         for j in range(n_lanes):
             if j != k and lane_next[k] >= 0 and lane_next[j] == lane_next[k]:
                 lane_partner[k] = j
-                along = _divergence(shapes[k][::-1], shapes[j][::-1])
-                lane_converge[k] = along
+                lane_converge[k] = _dist_to_divergence(
+                    shapes[k], lane_length[k], shapes[j], lane_length[j]
+                )
 
     n_routes = len(route_seq)
     k_max = max(len(s) for s in route_seq)
@@ -273,6 +274,53 @@ def compile_network(net_file: str | Path, n_legs: int | None = None) -> Compiled
         conflict_offset=conflict_offset,
         entry_visibility=np.asarray(visibility),
     )
+
+
+def _dist_to_divergence(
+    shape: np.ndarray,
+    length: float,
+    sib: np.ndarray,
+    sib_length: float,
+    min_dist: float = 2.5,
+) -> float:
+    """SUMO's MSLink::computeDistToDivergence for two lanes merging into one:
+    the length of `shape`'s end that lies within `min_dist` of `sib`, taken as
+    the max over both lanes and scaled to the lane's length."""
+
+    def glen(p):
+        return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
+
+    def pdist(pt, poly):
+        a, b = poly[:-1], poly[1:]
+        v = b - a
+        l2 = np.maximum((v * v).sum(1), 1e-300)
+        t = np.clip(((pt - a) * v).sum(1) / l2, 0, 1)
+        return float(np.min(np.linalg.norm(a + t[:, None] * v - pt, axis=1)))
+
+    g_l, g_s = glen(shape), glen(sib)
+    lr, sr = shape[::-1], sib[::-1]
+    lbc_s = lbc_l = 0.0
+    if np.linalg.norm(lr[-1] - sr[-1]) > min_dist:
+        dist = [pdist(p, sr) for p in lr] + [pdist(p, lr) for p in sr]
+        n_l = len(lr)
+        if dist[-1] > min_dist and dist[n_l - 1] > min_dist:
+            for j in range(len(sr) - 2, -1, -1):
+                i = j + n_l
+                seg = float(np.linalg.norm(sr[j] - sr[j + 1]))
+                if dist[i] > min_dist:
+                    lbc_s += seg
+                else:
+                    lbc_s += seg - (min_dist - dist[i]) * seg / (dist[i + 1] - dist[i])
+                    break
+            for i in range(n_l - 2, -1, -1):
+                seg = float(np.linalg.norm(lr[i] - lr[i + 1]))
+                if dist[i] > min_dist:
+                    lbc_l += seg
+                else:
+                    lbc_l += seg - (min_dist - dist[i]) * seg / (dist[i + 1] - dist[i])
+                    break
+    r = min(max(sib_length - lbc_s, length - lbc_l), g_s, g_l)
+    return r * length / g_l
 
 
 def _visibility(path: Path, from_edge: str, to_edge: str) -> float:
