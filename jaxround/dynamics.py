@@ -42,7 +42,14 @@ DEPART_OFFSET = 0.1
 ARRIVAL_EPS = 0.1
 
 
-def _rearmost_on(front, back, pos, active, seg_start, seg_end):
+def _rearmost_on(
+    front: jax.Array,
+    back: jax.Array,
+    pos: jax.Array,
+    active: jax.Array,
+    seg_start: jax.Array,
+    seg_end: jax.Array,
+) -> tuple[jax.Array, jax.Array, jax.Array]:
     """The rearmost vehicle with any part on [seg_start, seg_end) of each
     vehicle's route, ahead of it (SUMO's getLastVehicleInformation of a lane).
 
