@@ -333,29 +333,15 @@ def _sumo_worker(
     """The body of `run_sumo_window`, in the worker process."""
     import libsumo
 
-    from sumo_export.runner import DRAIN_S
+    from sumo_export.runner import DRAIN_S, sumo_arguments
     from sumo_export.scenario import write_scenario
 
     with tempfile.TemporaryDirectory(prefix="jaxround-bench-") as tmp:
         out = Path(tmp)
         files = write_scenario(cfg, schedule, out)
-        args = [
-            "sumo",
-            "-c",
-            str(files.sumocfg),
-            "--tripinfo-output",
-            str(out / "tripinfo.xml"),
-            "--device.emissions.probability",
-            "1",
-            "--statistic-output",
-            str(out / "statistics.xml"),
-            "--duration-log.disable",
-            "true",
-            "--no-step-log",
-            "true",
-            "--no-warnings",
-            "true",
-        ]
+        args = sumo_arguments(
+            files.sumocfg, out / "tripinfo.xml", out / "statistics.xml"
+        )
         t0 = time.perf_counter()
         libsumo.start(args)
         load_s = time.perf_counter() - t0

@@ -64,23 +64,7 @@ def run_schedule(
         files = write_scenario(cfg, schedule, out)
         tripinfo = out / "tripinfo.xml"
         stats = out / "statistics.xml"
-        args = [
-            "sumo",
-            "-c",
-            str(files.sumocfg),
-            "--tripinfo-output",
-            str(tripinfo),
-            "--device.emissions.probability",
-            "1",
-            "--statistic-output",
-            str(stats),
-            "--duration-log.disable",
-            "true",
-            "--no-step-log",
-            "true",
-            "--no-warnings",
-            "true",
-        ]
+        args = sumo_arguments(files.sumocfg, tripinfo, stats)
         libsumo.start(args)
         try:
             queues = _simulate(libsumo, cfg, schedule, controller)
@@ -96,6 +80,21 @@ def run_schedule(
         teleports=teleports,
         sim_end_s=float(sim_end),
     )
+
+
+def sumo_arguments(sumocfg: Path, tripinfo: Path, stats: Path) -> list[str]:
+    """The libsumo command line of a run: emissions on every vehicle, trip and
+    statistics output, quiet."""
+    return [
+        "sumo",
+        "-c", str(sumocfg),
+        "--tripinfo-output", str(tripinfo),
+        "--device.emissions.probability", "1",
+        "--statistic-output", str(stats),
+        "--duration-log.disable", "true",
+        "--no-step-log", "true",
+        "--no-warnings", "true",
+    ]  # fmt: skip
 
 
 def _simulate(
