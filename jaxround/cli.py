@@ -280,6 +280,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
+    def sumo_run_options(p: argparse.ArgumentParser) -> None:
+        p.add_argument(
+            "--workers",
+            type=positive_int,
+            default=None,
+            help="SUMO processes side by side (default: CPUs)",
+        )
+        p.add_argument("--json", action="store_true", help="print one JSON object")
+        p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
     def common(p: argparse.ArgumentParser) -> None:
         p.add_argument(
             "--config",
@@ -299,27 +309,13 @@ def build_parser() -> argparse.ArgumentParser:
     common(p)
     p.add_argument("--penetration", type=percent, default=None, help="AVs, percent")
     p.add_argument("--seeds", type=positive_int, default=1, help="number of seeds")
-    p.add_argument(
-        "--workers",
-        type=positive_int,
-        default=None,
-        help="SUMO processes side by side (default: CPUs)",
-    )
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    sumo_run_options(p)
     p.set_defaults(func=cmd_sumo)
 
     p = sub.add_parser("parity", help="JAX against SUMO on the same HV-only schedules")
     common(p)
     p.add_argument("--seeds", type=positive_int, default=3, help="number of seeds")
-    p.add_argument(
-        "--workers",
-        type=positive_int,
-        default=None,
-        help="SUMO processes side by side (default: CPUs)",
-    )
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    sumo_run_options(p)
     p.set_defaults(func=cmd_parity)
 
     p = sub.add_parser("bench", help="vehicle-steps per second: JAX batches vs SUMO")

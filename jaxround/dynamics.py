@@ -71,6 +71,59 @@ def _rearmost_on(
     return jnp.isfinite(bmin), j, bmin - pos[:, None]
 
 
+def link_leader_speed(
+    net: NetArrays,
+    params: EnvParams,
+    route: jax.Array,
+    pos: jax.Array,
+    speed: jax.Array,
+    v_lane: jax.Array,
+    active: jax.Array,
+    may_drive_to_line: jax.Array,
+    v_wait: jax.Array,
+    dt: float,
+    n_substeps: int,
+    action_step: float,
+    km_fixed: int | None = None,
+) -> tuple[jax.Array, jax.Array]:
+    """The speed the link leaders at one merge allow (SUMO's checkLinkLeader).
+
+    The nearest link leader binds (IDM's speed falls with the gap); a negative
+    gap means "stop before the merging lane"; where `may_drive_to_line`, a
+    vehicle may always drive up to its yield line (`v_wait`) while the
+    leader's front is still on the merging lane.
+
+    Args:
+        may_drive_to_line: bool (M,) the vehicle is before its yield line and
+            this is its entry's merge.
+        km_fixed: the route lane index of the merge; default the next merge.
+
+    Returns:
+        (v, to_link): float (M,) the allowed speed (inf without link leader),
+        float (M,) distance to the start of the merging lane.
+    """
+    p = params
+    is_link, gap, front_on_q, to_link = link_leaders(
+        net, route, pos, active, p.length, p.min_gap, km_fixed=km_fixed
+    )
+    gap = jnp.where(is_link, gap, jnp.inf)
+    nearest = jnp.argmin(gap, axis=1)  # (M,)
+    has = jnp.isfinite(jnp.min(gap, axis=1))
+    gap = jnp.where(has, jnp.min(gap, axis=1), 0.0)
+    front_on_q = jnp.take_along_axis(front_on_q, nearest[:, None], 1)[:, 0]
+    v = idm.idm_follow_speed(
+        speed, speed[nearest], gap + p.min_gap, v_lane, p.accel, p.decel, p.tau,
+        p.min_gap, p.delta, dt, n_substeps,
+    )  # fmt: skip
+    v_stop = idm.idm_stop_speed(
+        speed, to_link - STOP_OFFSET, v_lane, p.accel, p.decel, p.tau, p.delta, dt,
+        n_substeps, action_step,
+    )  # fmt: skip
+    v = jnp.where(gap >= 0, v, jnp.where(to_link > 0, v_stop, 0.0))
+    v = jnp.where(may_drive_to_line & front_on_q, jnp.maximum(v, v_wait), v)
+    return jnp.where(has, v, jnp.inf), to_link
+
+
 def planned_speed(
     net: NetArrays,
     params: EnvParams,
@@ -115,19 +168,6 @@ def planned_speed(
         dt, n_substeps,
     )  # fmt: skip
     v_follow_own = v_follow
-    is_link, link_gap, link_front_on_q, to_link = link_leaders(
-        net, route, pos, active, p.length, p.min_gap
-    )
-    # the nearest link leader binds (IDM's speed falls with the gap)
-    link_gap = jnp.where(is_link, link_gap, jnp.inf)
-    nearest = jnp.argmin(link_gap, axis=1)  # (M,)
-    has_link = jnp.isfinite(jnp.min(link_gap, axis=1))
-    link_gap = jnp.where(has_link, jnp.min(link_gap, axis=1), 0.0)
-    link_front_on_q = jnp.take_along_axis(link_front_on_q, nearest[:, None], 1)[:, 0]
-    v_link = idm.idm_follow_speed(
-        speed, speed[nearest], link_gap + p.min_gap, v_lane, p.accel, p.decel, p.tau,
-        p.min_gap, p.delta, dt, n_substeps,
-    )  # fmt: skip
 
     # 2. speed limits of the lanes ahead (and the free road on this one)
     starts = net.route_lane_start[route]  # (M, K)
@@ -159,18 +199,11 @@ def planned_speed(
         n_substeps, action_step,
     )  # fmt: skip
     v_wait = jnp.where(seen > 0, v_wait, 0.0)
-    # link leaders: a negative gap means "wait at the line"; before its line
-    # a vehicle may always drive up to it while the leader's front is still
-    # on the merging lane; the entry's leave speed is capped by them too
-    v_link_stop = idm.idm_stop_speed(
-        speed, to_link - STOP_OFFSET, v_lane, p.accel, p.decel, p.tau, p.delta, dt,
+    # link leaders at the next merge; the entry's leave speed is capped by them
+    v_link, to_link = link_leader_speed(
+        net, p, route, pos, speed, v_lane, active, seen > 0, v_wait, dt,
         n_substeps, action_step,
     )  # fmt: skip
-    v_link_stop = jnp.where(to_link > 0, v_link_stop, 0.0)
-    v_link = jnp.where(link_gap >= 0, v_link, v_link_stop)
-    floor = (seen > 0) & link_front_on_q
-    v_link = jnp.where(floor, jnp.maximum(v_link, v_wait), v_link)
-    v_link = jnp.where(has_link, v_link, jnp.inf)  # (M,)
     leave_cap = jnp.where(seen > 0, v_link, jnp.inf)
     v_follow = jnp.minimum(v_follow, v_link)
     can_brake = (seen > brake_gap(speed, p.decel, 0.0, dt)) | (speed < p.decel * dt)
@@ -264,28 +297,10 @@ def planned_speed(
     )
     vl_k = [jnp.full(m, jnp.inf)] * starts.shape[1]
     for kk in net.merge_positions:  # only lanes that merge can have link leaders
-        il, lg, fq, tl = link_leaders(
-            net, route, pos, active, p.length, p.min_gap, km_fixed=kk
-        )
-        # the nearest link leader binds (IDM's speed falls with the gap)
-        lg = jnp.where(il, lg, jnp.inf)
-        jn = jnp.argmin(lg, axis=1)
-        has = jnp.isfinite(jnp.min(lg, axis=1))
-        lg = jnp.where(has, jnp.min(lg, axis=1), 0.0)
-        fq = jnp.take_along_axis(fq, jn[:, None], 1)[:, 0]
-        vv = idm.idm_follow_speed(
-            speed, speed[jn], lg + p.min_gap, v_lane, p.accel, p.decel, p.tau,
-            p.min_gap, p.delta, dt, n_substeps,
+        vl_k[kk], _ = link_leader_speed(
+            net, p, route, pos, speed, v_lane, active, (seen > 0) & (kk == 1),
+            v_wait, dt, n_substeps, action_step, km_fixed=kk,
         )  # fmt: skip
-        vs = idm.idm_stop_speed(
-            speed, tl - STOP_OFFSET, v_lane, p.accel, p.decel, p.tau, p.delta,
-            dt, n_substeps, action_step,
-        )  # fmt: skip
-        vs = jnp.where(tl > 0, vs, 0.0)
-        vv = jnp.where(lg >= 0, vv, vs)
-        fl = (seen > 0) & fq & (kk == 1)
-        vv = jnp.where(fl, jnp.maximum(vv, v_wait), vv)
-        vl_k[kk] = jnp.where(has, vv, jnp.inf)
     vl_k = jnp.stack(vl_k, 1)  # (M, K) link leaders where lane k merges
     m_before = starts[:, :, None] < c3 - 1e-3
     v_pre = jnp.minimum(
