@@ -184,6 +184,30 @@ class SimulationConfig:
             raise ConfigError(f"{where}.seed: {self.seed}, expected >= 0")
 
 
+#: Observers of the AV policy (`jaxround.observe`).
+OBSERVERS = ("paper", "rich")
+
+
+@dataclass(frozen=True)
+class AgentConfig:
+    """What an AV's policy sees and is rewarded for (`jaxround.observe`, `.reward`)."""
+
+    observer: str = "rich"  # "paper" (Eq. 1, 10 numbers) or "rich" (Eq. 1 + more)
+    speed_weight: float = 1.0  # weight of the desired-velocity term of Eq. 3
+    pollution_weight: float = 1.0  # weight of the pollution term of Eq. 3
+    time_penalty: float = 1.0  # subtracted per step: 1 makes Eq. 3 a cost of 1 - r
+
+    def validate(self, where: str) -> None:
+        if self.observer not in OBSERVERS:
+            raise ConfigError(
+                f"{where}.observer: {self.observer!r}, expected one of {OBSERVERS}"
+            )
+        for name in ("speed_weight", "pollution_weight", "time_penalty"):
+            _non_negative(getattr(self, name), f"{where}.{name}")
+        if self.speed_weight + self.pollution_weight <= 0:
+            raise ConfigError(f"{where}: speed_weight + pollution_weight must be > 0")
+
+
 @dataclass(frozen=True)
 class ScenarioConfig:
     """Everything both simulators need to run the same roundabout."""
@@ -193,6 +217,7 @@ class ScenarioConfig:
     demand: DemandConfig
     drivers: DriversConfig
     simulation: SimulationConfig
+    agent: AgentConfig = AgentConfig()  # the AVs' observer and reward
     description: str = ""  # free text
 
     def validate(self) -> None:
@@ -203,6 +228,7 @@ class ScenarioConfig:
         self.drivers.hv.validate("drivers.hv")
         self.drivers.av.validate("drivers.av")
         self.simulation.validate("simulation")
+        self.agent.validate("agent")
         if self.demand.duration_s < self.simulation.dt_s:
             raise ConfigError(
                 "demand.duration_s: shorter than one step (simulation.dt_s)"
@@ -233,6 +259,7 @@ class ScenarioConfig:
         d = self.to_dict()
         d.pop("simulation")
         d.pop("description")
+        d.pop("agent")
         d["dt_s"] = self.simulation.dt_s
         blob = json.dumps(d, sort_keys=True).encode()
         return hashlib.sha256(blob).hexdigest()[:16]
@@ -360,6 +387,7 @@ def _distribution(row: tuple[float, ...], where: str, n: int) -> None:
 
 
 __all__ = [
+    "AgentConfig",
     "ConfigError",
     "DemandConfig",
     "DriverConfig",

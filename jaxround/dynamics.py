@@ -139,7 +139,7 @@ def planned_speed(
     n_substeps: int,
     action_step: float,
     debug: bool = False,
-) -> tuple[jax.Array, Registrations, jax.Array]:
+) -> tuple[jax.Array, Registrations, jax.Array, jax.Array, jax.Array]:
     """Every vehicle's speed at the end of the step, as SUMO's IDM plans it.
 
     Args:
@@ -149,8 +149,9 @@ def planned_speed(
         t: time at the start of the step.
 
     Returns:
-        (v_next, regs, blocked): float (M,), this step's registrations, bool
-        (M,) held at the yield line.
+        (v_next, regs, blocked, leader, gap): float (M,), this step's
+        registrations, bool (M,) held at the yield line, int (M,) the slot
+        ahead on the vehicle's lanes (-1 for none), float (M,) the gap to it.
     """
     p = params
     k, lane, pos_on_lane = locate(net, route, pos)
@@ -177,9 +178,10 @@ def planned_speed(
     )
     seen = starts - pos[:, None]
     later = (jnp.arange(starts.shape[1])[None, :] > k[:, None]) & (lanes_ahead >= 0)
+    pc = p.columns()  # per-vehicle numbers against (M, K) arrays
     v_limits = idm.idm_free_speed_ahead(
-        speed[:, None], seen, limit_ahead, v_lane[:, None], p.accel, p.decel, p.tau,
-        p.delta, dt, n_substeps,
+        speed[:, None], seen, limit_ahead, v_lane[:, None], pc.accel, p.decel,
+        pc.tau, p.delta, dt, n_substeps,
     )  # fmt: skip
     v_limits = jnp.maximum(v_limits, speed[:, None] - p.decel * dt)
     v_limits_k = jnp.where(later, v_limits, jnp.inf)  # (M, K)
@@ -220,9 +222,10 @@ def planned_speed(
     )
 
     def fol(v, v_l, gap):  # SUMO's futureVSafe: followSpeed from the leave speed
+        q = pc if v.ndim == 2 else p
         return idm.idm_follow_speed(
-            v, v_l, gap, v_lane[:, None] if v.ndim == 2 else v_lane, p.accel,
-            p.decel, p.tau, p.min_gap, p.delta, dt, n_substeps,
+            v, v_l, gap, v_lane[:, None] if v.ndim == 2 else v_lane, q.accel,
+            p.decel, q.tau, p.min_gap, p.delta, dt, n_substeps,
         )  # fmt: skip
 
     # leaders on the approach cap the entry's arrival speed (adaptToLeader)
@@ -282,8 +285,8 @@ def planned_speed(
     ends_k = starts + lens_k  # (M, K), inf padded
     l_has, l_j, l_gap = _rearmost_on(front, back, pos, active, starts, ends_k)
     f_k = idm.idm_follow_speed(
-        speed[:, None], speed[l_j], l_gap, v_lane[:, None], p.accel, p.decel,
-        p.tau, p.min_gap, p.delta, dt, n_substeps,
+        speed[:, None], speed[l_j], l_gap, v_lane[:, None], pc.accel, p.decel,
+        pc.tau, p.min_gap, p.delta, dt, n_substeps,
     )  # fmt: skip
     mine = (jnp.arange(starts.shape[1])[None, :] >= k[:, None]) & (lanes_k >= 0)
     f_k = jnp.where(l_has & mine, f_k, jnp.inf)
@@ -348,4 +351,4 @@ def planned_speed(
     v_next = idm.next_speed(
         speed, v_safe, v_lane, p.accel, p.decel, p.emergency_decel, dt, action_step
     )
-    return jnp.where(active, v_next, 0.0), regs, blocked
+    return jnp.where(active, v_next, 0.0), regs, blocked, leader, gap

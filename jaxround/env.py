@@ -18,17 +18,22 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-from jaxround import dynamics, emissions, geometry, idm, insertion
-from jaxround.config import ScenarioConfig, load_config
+from jaxround import dynamics, emissions, geometry, idm, insertion, observe
+from jaxround.config import ConfigError, ScenarioConfig, load_config
 from jaxround.network import CompiledNetwork, compile_network
+from jaxround.reward import av_reward
 from jaxround.schedule import Schedule as NumpySchedule
 from jaxround.state import EnvParams, EnvState, Registrations, Schedule
 
 #: Extra seconds after the demand horizon for the last vehicles to leave.
 DEFAULT_DRAIN_S = 300.0
-#: Number of per-slot observation features of the basic observer.
-N_BASIC_FEATURES = 6
+#: Driver numbers the JAX environment shares between AVs and human drivers.
+SHARED_DRIVER_FIELDS = (
+    "car_follow_model", "decel", "emergency_decel", "min_gap", "delta", "length",
+    "max_speed",
+)  # fmt: skip
 
 
 class RoundaboutEnv:
@@ -52,6 +57,7 @@ class RoundaboutEnv:
             )
         if max_vehicles < 1:
             raise ValueError(f"max_vehicles: {max_vehicles}, expected >= 1")
+        check_driver_classes(cfg)
         self.cfg = cfg
         self.network = network
         self.net = geometry.NetArrays.from_network(network)
@@ -67,6 +73,13 @@ class RoundaboutEnv:
             cfg.demand.duration_s + DEFAULT_DRAIN_S if episode_s is None else episode_s
         )
         self.episode_steps = int(math.ceil(self.episode_s / self.dt))
+        self.observer = cfg.agent.observer
+        dest = np.zeros(network.route_index.max() + 1, np.int32)
+        for o in range(network.n_legs):
+            for d in range(network.n_legs):
+                if network.route_index[o, d] >= 0:
+                    dest[network.route_index[o, d]] = d
+        self.route_destination = jnp.asarray(dest)
 
     # ------------------------------------------------------------------ params
 
@@ -78,6 +91,16 @@ class RoundaboutEnv:
     def n_legs(self) -> int:
         return self.network.n_legs
 
+    @property
+    def obs_size(self) -> int:
+        """Numbers per slot of the configured observer."""
+        return observe.OBSERVATION_SIZES[self.observer]
+
+    @property
+    def action_size(self) -> int:
+        """Per slot: acceleration (m/s^2) and lane-change decision (> 0.5: change)."""
+        return 2
+
     # ------------------------------------------------------------------ schedules
 
     def schedule_from_numpy(self, schedule: NumpySchedule) -> Schedule:
@@ -88,11 +111,15 @@ class RoundaboutEnv:
                 f"{self.n_schedule}"
             )
         route = self.network.route_index[schedule.origin, schedule.destination]
+        drivers = self.cfg.drivers
+        factor = schedule.class_speed_factors(
+            drivers.hv.speed_dev, drivers.av.speed_dev
+        )
         return Schedule(
             depart_s=jnp.asarray(schedule.depart_s, jnp.float32),
             route=jnp.asarray(route, jnp.int32),
             origin=jnp.asarray(schedule.origin, jnp.int32),
-            speed_factor=jnp.asarray(schedule.speed_factor, jnp.float32),
+            speed_factor=jnp.asarray(factor, jnp.float32),
             is_av=jnp.asarray(schedule.is_av),
         )
 
@@ -113,12 +140,16 @@ class RoundaboutEnv:
         # round(p * N) with halves up, as `n_av_at`; the margin absorbs float32
         n_av = jnp.floor(params.penetration * n + 0.5 + 1e-3)
         route = jnp.asarray(self.network.route_index)[origin, dest]
+        is_av = rank < n_av
+        # as `Schedule.class_speed_factors`: AVs scale their deviation from 1
+        scale = params.av_speed_dev / jnp.maximum(params.speed_dev, 1e-6)
+        av_factor = jnp.round((1.0 + (speed_factor - 1.0) * scale) * 1e4) / 1e4
         return Schedule(
             depart_s=depart.astype(jnp.float32),
             route=route.astype(jnp.int32),
             origin=origin.astype(jnp.int32),
-            speed_factor=speed_factor.astype(jnp.float32),
-            is_av=rank < n_av,
+            speed_factor=jnp.where(is_av, av_factor, speed_factor).astype(jnp.float32),
+            is_av=is_av,
         )
 
     # ------------------------------------------------------------------ API
@@ -156,6 +187,7 @@ class RoundaboutEnv:
             queue_max=jnp.zeros(g, jnp.float32),
             queue_samples=jnp.int32(0),
             overflow=jnp.int32(0),
+            collisions=jnp.int32(0),
             registrations=Registrations.empty(m, g),
         )
         state = self._insert(state, params, jnp.float32(0.0))
@@ -185,27 +217,55 @@ class RoundaboutEnv:
     def step_env(
         self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams
     ) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, dict[str, Any]]:
-        """One step without the automatic reset (see `step`)."""
-        del key, action  # the AV action arrives with the AV controller
+        """One step without the automatic reset (see `step`).
+
+        Every vehicle plans its speed as SUMO's IDM does with its class's
+        parameters; an AV then drives at ``speed + action[:, 0] * dt``, held
+        between the slowest speed its decel allows and its IDM speed (the
+        cap SUMO's safe speed mode puts on a commanded IDM vehicle): the
+        command can slow an AV, never make it unsafe. ``action[:, 1]`` (lane
+        change) has nothing to act on: every lane of these roundabouts is
+        the only one of its road.
+
+        Returns:
+            (obs, state, reward, done, info): reward float (M,) for the AV
+            slots (0 elsewhere); info["agent"] bool (M,) the slot held an AV
+            at the start of the step, info["terminated"] bool (M,) that AV
+            left the network, info["truncated"] bool (M,) the episode ended
+            with the vehicle still in it.
+        """
+        del key
         p, net = params, self.net
+        pv = p.for_vehicles(state.is_av)  # (M,) accel, tau, gap acceptance
         t = state.step.astype(jnp.float32) * self.dt  # time at the start of the step
 
-        # 1. plan and move
-        v_next, regs, _ = dynamics.planned_speed(
-            net, p, state.route, state.pos, state.speed, state.speed_factor,
+        # 1. plan (IDM), the AVs' commands within their bounds, move
+        v_idm, regs, _, leader, gap = dynamics.planned_speed(
+            net, pv, state.route, state.pos, state.speed, state.speed_factor,
             state.active, state.waiting_s, state.registrations, t, self.dt,
             self.n_substeps, self.action_step,
         )  # fmt: skip
+        v_next = av_speed(state.speed, v_idm, action[:, 0], pv, self.dt)
+        v_next = jnp.where(state.active & state.is_av, v_next, v_idm)
         pos_next = state.pos + v_next * self.dt
         route_len = net.route_length[state.route]
         arrived = state.active & (pos_next > route_len - dynamics.ARRIVAL_EPS)
+        # a vehicle whose bumper passed the back of the one it followed
+        lead = jnp.maximum(leader, 0)
+        gap_next = gap + (v_next[lead] - v_next) * self.dt
+        crashed = state.active & (leader >= 0) & ~arrived[lead] & (gap_next < -1e-3)
         # SUMO counts the arrival step in full (measured against tripinfo)
-        co2, fuel = emissions.step_emissions_mg(state.speed, v_next, self.dt)
-        co2 = state.co2_mg + jnp.where(state.active, co2, 0.0)
-        fuel = state.fuel_mg + jnp.where(state.active, fuel, 0.0)
+        co2_step, fuel_step = emissions.step_emissions_mg(state.speed, v_next, self.dt)
+        co2 = state.co2_mg + jnp.where(state.active, co2_step, 0.0)
+        fuel = state.fuel_mg + jnp.where(state.active, fuel_step, 0.0)
         waiting = jnp.where(
             v_next < dynamics.HALTING_SPEED, state.waiting_s + self.dt, 0.0
         )
+        agent = state.active & state.is_av
+        _, lane, _ = geometry.locate(net, state.route, state.pos)
+        v_desired = jnp.minimum(net.lane_speed[lane] * state.speed_factor, p.max_speed)
+        reward = av_reward(v_next, v_desired, co2_step / self.dt, p)
+        reward = jnp.where(agent, reward, 0.0)
 
         # 2. arrivals leave their slots
         vid = jnp.where(arrived, state.vid, self.n_schedule)  # out of range: dropped
@@ -220,12 +280,14 @@ class RoundaboutEnv:
             pos=jnp.where(active, pos_next, 0.0),
             speed=jnp.where(active, v_next, 0.0),
             accel=jnp.where(active, (v_next - state.speed) / self.dt, 0.0),
+            is_av=state.is_av & active,
             waiting_s=jnp.where(active, waiting, 0.0),
             co2_mg=jnp.where(active, co2, 0.0),
             fuel_mg=jnp.where(active, fuel, 0.0),
             arrival_s=arrival_s,
             trip_co2_mg=trip_co2,
             trip_fuel_mg=trip_fuel,
+            collisions=state.collisions + jnp.sum(crashed),
             registrations=regs._replace(ok=regs.ok & active[:, None]),
         )
 
@@ -233,11 +295,12 @@ class RoundaboutEnv:
         state = self._insert(state, p, t + self.dt)
         state = self._count_queues(state, p, t + self.dt)
         done = state.step >= self.episode_steps
-        reward = jnp.zeros(self.max_vehicles, jnp.float32)
         info = {
-            "terminated": jnp.zeros(self.max_vehicles, bool),
-            "truncated": done,
+            "agent": agent,
+            "terminated": agent & arrived,
+            "truncated": agent & ~arrived & done,
             "arrived": jnp.sum(arrived),
+            "collisions": jnp.sum(crashed),
             "overflow": state.overflow,
             "n_active": jnp.sum(state.active),
         }
@@ -279,15 +342,17 @@ class RoundaboutEnv:
         free_lane = jnp.isinf(gap)
         # SUMO lowers the speed first for the vehicle ahead, then for the stop
         # the vehicle plans at its yield line (beyond the visibility distance)
+        pi = p.for_vehicles(s.is_av[c])  # (G,) the inserted vehicles' own
         v_follow = insertion.insertion_speed(
             v_lane, v_lane, state.speed[j],
             jnp.where(free_lane, 1e6, jnp.maximum(gap, 0.0)),
-            p, self.dt, self.n_substeps,
+            pi, self.dt, self.n_substeps,
         )  # fmt: skip
         v_ins = jnp.where(free_lane, v_lane, v_follow)
         v_ins = insertion.insertion_stop_speed(
-            v_ins, v_lane, net.yield_offset[route] - front, p, self.dt, self.n_substeps
-        )
+            v_ins, v_lane, net.yield_offset[route] - front, pi, self.dt,
+            self.n_substeps,
+        )  # fmt: skip
         room = free_lane | (gap >= 0.0)
         ok = has & room
         # slots: the k-th inserting leg takes the k-th free slot
@@ -344,21 +409,39 @@ class RoundaboutEnv:
         )
 
     def observation(self, state: EnvState, params: EnvParams) -> jax.Array:
-        """Basic per-slot features, float (M, 6): active, AV, progress, speed,
-        acceleration, waiting (normalised). Richer observers come with the AVs."""
-        route_len = self.net.route_length[state.route]
-        f = jnp.stack(
-            [
-                state.active.astype(jnp.float32),
-                state.is_av.astype(jnp.float32),
-                state.pos / route_len,
-                state.speed / params.max_speed,
-                state.accel / params.accel,
-                state.waiting_s / params.time_to_impatience,
-            ],
-            axis=-1,
-        )
-        return jnp.where(state.active[:, None], f, 0.0)
+        """The configured observer's rows, float (M, obs_size) (`jaxround.observe`)."""
+        if self.observer == "paper":
+            return observe.paper_observation(self.net, state, params)[0]
+        return observe.rich_observation(self.net, state, params, self.route_destination)
+
+
+def av_speed(
+    speed: jax.Array, v_idm: jax.Array, accel: jax.Array, params: EnvParams, dt: float
+) -> jax.Array:
+    """An AV's speed after a commanded acceleration, float (M,).
+
+    The command is bounded by the AV's accel and decel, then the speed is
+    held between the slowest its decel allows and its IDM speed `v_idm`
+    (SUMO's speed mode 31 on an IDM vehicle: an IDM emergency stop below
+    that range stays an emergency stop).
+    """
+    a = jnp.clip(jnp.nan_to_num(accel), -params.decel, params.accel)
+    v_min = jnp.maximum(speed - params.decel * dt, 0.0)
+    return idm.snap_speed(jnp.minimum(jnp.maximum(speed + a * dt, v_min), v_idm), dt)
+
+
+def check_driver_classes(cfg: ScenarioConfig) -> None:
+    """The JAX environment drives both classes with the IDM and shares some of
+    their numbers; a config that differs there gets a clear error."""
+    hv, av = cfg.drivers.hv, cfg.drivers.av
+    for name in SHARED_DRIVER_FIELDS:
+        if getattr(hv, name) != getattr(av, name):
+            raise ConfigError(
+                f"drivers.av.{name}: {getattr(av, name)!r} differs from "
+                f"drivers.hv.{name} {getattr(hv, name)!r}; the JAX environment "
+                "drives both classes as an IDM with these numbers shared (AVs may "
+                "differ in accel, tau, jm_timegap_minor, impatience, speed_dev)"
+            )
 
 
 def make(

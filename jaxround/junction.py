@@ -131,7 +131,8 @@ def register(
             withdraws its request on later links.
     """
     p = params
-    a, b, length = p.accel, p.decel, p.length
+    pc = p.columns()  # per-vehicle numbers against (M, G) arrays
+    a, b, length, tau = pc.accel, p.decel, p.length, pc.tau
     g = net.through_length.shape[0]
     c_off = net.conflict_offset[route]  # (M, G)
     dist = c_off - pos[:, None]
@@ -162,17 +163,17 @@ def register(
     a_t = t + minimal_arrival_time(d_pos, v_plan, a_s, a, b)
     l_t = a_t + (through + length) / jnp.maximum(0.5 * (a_s + l_s), 1e-3)
     # arrival speed if it brakes (MSCFModel::getMinimalArrivalSpeedEuler)
-    disc = v_plan**2 - 2 * b * (dist - v_plan * p.tau)
+    disc = v_plan**2 - 2 * b * (dist - v_plan * tau)
     brk = jnp.where(
         dist < v_plan, jnp.inf, jnp.where(disc >= 0, jnp.sqrt(jnp.abs(disc)), b)
     )
     braking = jnp.where(
-        dist >= brake_gap(v_plan, b, p.tau, dt), 0.0, jnp.minimum(brk, a_s)
+        dist >= brake_gap(v_plan, b, tau, dt), 0.0, jnp.minimum(brk, a_s)
     )
     # look-ahead: SUMO stops registering after a link once it has seen past
     # its braking distance and 5 vehicle lengths of normal lanes
-    max_v = jnp.minimum(speed + a * dt, p.max_speed)[:, None]
-    reach = max_v * dt + brake_gap(max_v, b, p.tau, dt)  # (M, 1)
+    max_v = jnp.minimum(speed[:, None] + a * dt, p.max_speed)  # (M, 1)
+    reach = max_v * dt + brake_gap(max_v, b, tau, dt)  # (M, 1)
     prev_seen = dist - net.prev_lane_length[route]
     prev_normal = net.normal_before[route] - normal_done(net, route, pos)[:, None]
     prev_internal = net.internal_before[route] - internal_done(net, route, pos)[:, None]
@@ -254,7 +255,9 @@ def entry_blocked(
     f_asb = jnp.where(use_imp, asb_brake, f_asb)
 
     # MSLink::blockedByFoe with equal decelerations (unsafeMerge is <=)
-    tg = p.jm_timegap_minor
+    tg = p.jm_timegap_minor  # the ego's own
+    if jnp.ndim(tg):
+        tg = tg[ego_slot][:, None]
     behind = f_lt < a_t
     blocked_behind = (a_t - f_lt < tg) | (f_ls**2 <= a_s**2)
     ahead = f_at_imp > l_t + tg

@@ -76,14 +76,19 @@ def parity_report(
     seeds: Sequence[int],
     workers: int | None = None,
     show_progress: bool = True,
+    penetration: float = 0.0,
 ) -> dict[str, Any]:
-    """The `jaxround parity --json` object for HV-only schedules of `seeds`."""
+    """The `jaxround parity --json` object for the schedules of `seeds`.
+
+    With `penetration` > 0 the AVs drive uncontrolled (their IDM vType) in
+    both simulators.
+    """
     from sumo_export.runner import run_many
 
-    cfg = cfg.with_overrides(penetration=0.0)
-    schedules = [make_schedule(cfg, seed=s, penetration=0.0) for s in seeds]
+    cfg = cfg.with_overrides(penetration=penetration)
+    schedules = [make_schedule(cfg, seed=s, penetration=penetration) for s in seeds]
     sumo_runs = run_many(cfg, schedules, workers=workers)
-    jax_runs = run_jax(cfg, seeds)
+    jax_runs = run_jax(cfg, seeds, penetration=penetration)
     horizon = cfg.demand.duration_s
     sumo_m = mean_over_runs([class_metrics(r.records, horizon) for r in sumo_runs])
     jax_m = mean_over_runs([class_metrics(r["records"], horizon) for r in jax_runs])
@@ -97,6 +102,7 @@ def parity_report(
     return {
         "scenario": cfg.name,
         "seeds": list(seeds),
+        "penetration": penetration,
         "jax": jax_m,
         "sumo": sumo_m,
         "rel_err": {

@@ -16,12 +16,19 @@ from jaxround.state import EnvParams, EnvState, Schedule
 Policy = Callable[[jax.Array, EnvState, jax.Array], jax.Array]
 
 
-def idle_policy(env: RoundaboutEnv) -> Policy:
-    """Zero action for every slot (human drivers ignore it)."""
+#: An acceleration command above any vehicle's accel: the AV drives its IDM.
+FULL_THROTTLE = 1e3
+
+
+def uncontrolled_policy(env: RoundaboutEnv) -> Policy:
+    """AVs drive their own vType (IDM) as SUMO does without a controller:
+    the command asks for more than the AV's accel, so the IDM speed binds.
+    Human drivers ignore the action."""
 
     def act(obs: jax.Array, state: EnvState, key: jax.Array) -> jax.Array:
         del obs, state, key
-        return jnp.zeros((env.max_vehicles, 2), jnp.float32)
+        accel = jnp.full((env.max_vehicles, 1), FULL_THROTTLE, jnp.float32)
+        return jnp.concatenate([accel, jnp.zeros_like(accel)], axis=1)
 
     return act
 
@@ -36,10 +43,12 @@ def run_episode(
 ) -> EnvState:
     """Run one episode from `schedule` without auto-reset; return the final state.
 
+    Without a `policy`, AVs drive uncontrolled (`uncontrolled_policy`).
+
     Pure and jit-able (jit with `env`, `policy` and `n_steps` static, e.g. via
     `make_episode_runner`); vmap over `schedule`, `params` or `key` for batches.
     """
-    policy = idle_policy(env) if policy is None else policy
+    policy = uncontrolled_policy(env) if policy is None else policy
     n_steps = env.episode_steps if n_steps is None else n_steps
     obs, state = env.reset_to_schedule(schedule, params)
 

@@ -58,6 +58,19 @@ class Schedule:
         """bool (N,): which vehicles are AVs at this schedule's penetration."""
         return self.av_rank < self.n_av
 
+    def class_speed_factors(
+        self, hv_speed_dev: float, av_speed_dev: float
+    ) -> np.ndarray:
+        """float64 (N,): the speedFactor each vehicle drives with in its class.
+
+        `speed_factor` is drawn with the human drivers' deviation; an AV scales
+        its deviation from 1 to its own class's (speedDev 0: exactly 1), so a
+        vehicle keeps its rank whichever class it has at a penetration.
+        """
+        scale = av_speed_dev / hv_speed_dev if hv_speed_dev > 0 else 0.0
+        av = np.round(1.0 + (self.speed_factor - 1.0) * scale, 4)
+        return np.where(self.is_av, av, self.speed_factor)
+
     def with_penetration(self, penetration: float) -> Schedule:
         """The same vehicles with another share of AVs."""
         if not 0.0 <= penetration <= 1.0:

@@ -18,6 +18,9 @@ from flax import struct
 
 from jaxround.config import ScenarioConfig
 
+#: The driver numbers in which AVs and human drivers differ.
+PER_VEHICLE_FIELDS = ("accel", "tau", "jm_timegap_minor", "impatience")
+
 
 @struct.dataclass
 class EnvParams:
@@ -40,9 +43,14 @@ class EnvParams:
         origin_share: (n_legs,) share of vehicles entering at each leg.
         od: (n_legs, n_legs) exit shares per origin.
         duration_s: demand horizon over which the N departures are spread.
-        desired_speed: AV reward: desired speed v, m/s.
-        reward_speed_weight: AV reward: weight of the speed term.
+        av_accel, av_tau, av_jm_timegap_minor, av_impatience, av_speed_dev:
+            the AVs' own values of these (their vType); the other driver
+            numbers are shared by both classes.
+        reward_speed_weight: AV reward: weight of the desired-velocity term.
         reward_pollution_weight: AV reward: weight of the pollution term.
+        reward_time_penalty: AV reward: subtracted every step in the network.
+
+    `for_vehicles(is_av)` gives the per-vehicle view the dynamics use.
     """
 
     accel: jax.Array
@@ -61,14 +69,19 @@ class EnvParams:
     origin_share: jax.Array
     od: jax.Array
     duration_s: jax.Array
-    desired_speed: jax.Array
+    av_accel: jax.Array
+    av_tau: jax.Array
+    av_jm_timegap_minor: jax.Array
+    av_impatience: jax.Array
+    av_speed_dev: jax.Array
     reward_speed_weight: jax.Array
     reward_pollution_weight: jax.Array
+    reward_time_penalty: jax.Array
 
     @classmethod
     def from_config(cls, cfg: ScenarioConfig) -> EnvParams:
         """The traced numbers of a scenario (human drivers' vType)."""
-        hv = cfg.drivers.hv
+        hv, av = cfg.drivers.hv, cfg.drivers.av
         f = jnp.float32
         return cls(
             accel=f(hv.accel),
@@ -87,9 +100,34 @@ class EnvParams:
             origin_share=jnp.asarray(cfg.demand.origin_share, jnp.float32),
             od=jnp.asarray(cfg.demand.od, jnp.float32),
             duration_s=f(cfg.demand.duration_s),
-            desired_speed=f(max(leg.speed_limit_mps for leg in cfg.network.legs)),
-            reward_speed_weight=f(1.0),
-            reward_pollution_weight=f(1.0),
+            av_accel=f(av.accel),
+            av_tau=f(av.tau),
+            av_jm_timegap_minor=f(av.jm_timegap_minor),
+            av_impatience=f(av.impatience),
+            av_speed_dev=f(av.speed_dev),
+            reward_speed_weight=f(cfg.agent.speed_weight),
+            reward_pollution_weight=f(cfg.agent.pollution_weight),
+            reward_time_penalty=f(cfg.agent.time_penalty),
+        )
+
+    def for_vehicles(self, is_av: jax.Array) -> EnvParams:
+        """The parameters each vehicle drives with: accel, tau, jm_timegap_minor
+        and impatience take the shape of `is_av` (their class's values)."""
+        return self.replace(
+            **{
+                name: jnp.where(is_av, getattr(self, "av_" + name), getattr(self, name))
+                for name in PER_VEHICLE_FIELDS
+            }
+        )
+
+    def columns(self) -> EnvParams:
+        """Per-vehicle fields (M,) as (M, 1), to broadcast against (M, K) arrays."""
+        return self.replace(
+            **{
+                name: getattr(self, name)[..., None]
+                for name in PER_VEHICLE_FIELDS
+                if jnp.ndim(getattr(self, name)) >= 1
+            }
         )
 
 
@@ -160,6 +198,8 @@ class EnvState:
         queue_max: float (n_legs,) largest queue per leg.
         queue_samples: int, steps summed into `queue_sum` (within the horizon).
         overflow: int, insertions postponed because every slot was full.
+        collisions: int, vehicles that ran into the one ahead (0 by design;
+            counted so evaluations can show it).
         registrations: the approaches each slot registered on the ring's
             through links in the last step, (M, G) arrays (SUMO plans with
             the previous step's registrations).
@@ -187,4 +227,5 @@ class EnvState:
     queue_max: jax.Array
     queue_samples: jax.Array
     overflow: jax.Array
+    collisions: jax.Array
     registrations: Registrations

@@ -84,13 +84,16 @@ def routes_xml(cfg: ScenarioConfig, schedule: Schedule) -> str:
                 edges = " ".join(route_edges(o, d, n_legs))
                 lines.append(f'  <route id="{route_id(o, d)}" edges="{edges}"/>')
     is_av = schedule.is_av
+    speed_factor = schedule.class_speed_factors(
+        cfg.drivers.hv.speed_dev, cfg.drivers.av.speed_dev
+    )
     for i in range(schedule.n_vehicles):
         vtype = AV_TYPE if is_av[i] else HV_TYPE
         lines.append(
             f'  <vehicle id="{vehicle_id(i)}" type="{vtype}" '
             f'route="{route_id(schedule.origin[i], schedule.destination[i])}" '
             f'depart="{schedule.depart_s[i]:.2f}" departSpeed="max" departLane="first" '
-            f'departPos="base" speedFactor="{schedule.speed_factor[i]:.4f}"/>'
+            f'departPos="base" speedFactor="{speed_factor[i]:.4f}"/>'
         )
     lines.append("</routes>")
     return "\n".join(lines) + "\n"

@@ -54,10 +54,13 @@ def test_route_file_carries_the_schedule(tmp_path: Path) -> None:
     files = write_scenario(cfg, s, tmp_path)
     vehicles = list(sumolib.xml.parse(str(files.routes), "vehicle"))
     assert len(vehicles) == 40
+    factor = s.class_speed_factors(cfg.drivers.hv.speed_dev, cfg.drivers.av.speed_dev)
+    assert np.all(factor[s.is_av] == 1.0)  # the AVs' speedDev is 0
+    np.testing.assert_array_equal(factor[~s.is_av], s.speed_factor[~s.is_av])
     for i, v in enumerate(vehicles):
         assert v.id == vehicle_id(i)
         assert float(v.depart) == s.depart_s[i]
-        assert float(v.speedFactor) == s.speed_factor[i]
+        assert float(v.speedFactor) == factor[i]
         assert v.type == ("av" if s.is_av[i] else "hv")
         assert v.route == f"r_{s.origin[i]}_{s.destination[i]}"
         assert v.departSpeed == "max"
@@ -86,10 +89,11 @@ def test_sumo_run_records_every_vehicle(tmp_path: Path) -> None:
     # fuel and CO2 follow the same emission model: their ratio is nearly fixed
     ratio = r.co2_g / r.fuel_g
     assert 3.0 < ratio.mean() < 3.3 and ratio.std() < 0.05
-    # SUMO used the schedule's speed factor, not its own draw
+    # SUMO used the schedule's speed factor (1 for AVs), not its own draw
     assert len(seen) == 150
+    factor = s.class_speed_factors(cfg.drivers.hv.speed_dev, cfg.drivers.av.speed_dev)
     for i in range(150):
-        assert seen[vehicle_id(i)] == pytest.approx(s.speed_factor[i], abs=1e-9)
+        assert seen[vehicle_id(i)] == pytest.approx(factor[i], abs=1e-9)
     m = class_metrics(r, cfg.demand.duration_s)
     assert m["av"]["n_vehicles"] == 30 and m["hv"]["n_vehicles"] == 120
     assert r.queue_mean_veh.shape == r.queue_max_veh.shape == (cfg.n_legs,)
