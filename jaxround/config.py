@@ -254,6 +254,14 @@ class ScenarioConfig:
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
+    def roads_and_drivers_fingerprint(self) -> str:
+        """Short hash of what a trained policy depends on: network, drivers, dt
+        (not demand, seed, penetration or the observer, which a policy names)."""
+        d = {"network": self.to_dict()["network"], "drivers": self.to_dict()["drivers"]}
+        d["dt_s"] = self.simulation.dt_s
+        blob = json.dumps(d, sort_keys=True).encode()
+        return hashlib.sha256(blob).hexdigest()[:16]
+
     def fingerprint(self) -> str:
         """Short hash of network, demand and drivers (not of seed or penetration)."""
         d = self.to_dict()
@@ -268,10 +276,18 @@ class ScenarioConfig:
 # --------------------------------------------------------------------------- loading
 
 
+#: Files in `configs` whose name starts so are trainer configs, not scenarios.
+TRAINER_PREFIX = "ppo_"
+
+
 def builtin_configs() -> list[str]:
     """Names of the scenarios shipped in the `configs` package."""
     files = resources.files("configs").iterdir()
-    return sorted(p.name[:-5] for p in files if p.name.endswith(".yaml"))
+    return sorted(
+        p.name[:-5]
+        for p in files
+        if p.name.endswith(".yaml") and not p.name.startswith(TRAINER_PREFIX)
+    )
 
 
 def load_config(source: str | Path | None = None) -> ScenarioConfig:
@@ -288,23 +304,36 @@ def load_config(source: str | Path | None = None) -> ScenarioConfig:
         ConfigError: the file is missing, not YAML, or a field is wrong.
     """
     source = "milan" if source is None else source
+    return config_from_dict(read_yaml(source, builtin_configs(), "scenario"))
+
+
+def read_yaml(source: str | Path, builtins: list[str], what: str) -> Any:
+    """The parsed YAML of a file path or of a built-in file of `configs`.
+
+    Args:
+        source: a ``.yaml`` path, or one of `builtins`.
+        builtins: names of the built-in files this kind of config may use.
+        what: the kind of config, for the error messages ("scenario").
+
+    Raises:
+        ConfigError: the file is missing, unknown or not YAML.
+    """
     path = Path(source)
     if path.suffix in (".yaml", ".yml") or path.exists():
         if not path.is_file():
-            raise ConfigError(f"config file {str(path)!r} does not exist")
+            raise ConfigError(f"{what} config file {str(path)!r} does not exist")
         text = path.read_text()
-    elif str(source) in builtin_configs():
+    elif str(source) in builtins:
         text = resources.files("configs").joinpath(f"{source}.yaml").read_text()
     else:
         raise ConfigError(
-            f"{source!r} is neither a config file nor a built-in scenario "
-            f"({', '.join(builtin_configs())})"
+            f"{source!r} is neither a {what} config file nor a built-in one "
+            f"({', '.join(builtins)})"
         )
     try:
-        data = yaml.safe_load(text)
+        return yaml.safe_load(text)
     except yaml.YAMLError as err:
         raise ConfigError(f"{source}: not valid YAML: {err}") from None
-    return config_from_dict(data)
 
 
 def config_from_dict(data: Any) -> ScenarioConfig:

@@ -6,6 +6,8 @@ import copy
 from importlib import resources
 from typing import Any
 
+import jax
+import numpy as np
 import pytest
 import yaml
 
@@ -35,3 +37,13 @@ def small_config(
 @pytest.fixture
 def milan_dict() -> dict[str, Any]:
     return builtin_dict("milan")
+
+
+def tree_equal(a: Any, b: Any) -> bool:
+    """Bitwise equality of two pytrees (nan equal to nan)."""
+    la, ta = jax.tree.flatten(a)
+    lb, tb = jax.tree.flatten(b)
+    return ta == tb and all(
+        np.array_equal(np.asarray(x), np.asarray(y), equal_nan=True)
+        for x, y in zip(la, lb, strict=True)
+    )

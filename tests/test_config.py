@@ -108,7 +108,9 @@ def test_bad_values_name_the_field(milan_dict: dict, edit, message: str) -> None
 
 
 def test_unknown_builtin_and_missing_file(tmp_path: Path) -> None:
-    with pytest.raises(ConfigError, match="neither a config file nor a built-in"):
+    with pytest.raises(
+        ConfigError, match="neither a scenario config file nor a built-in"
+    ):
         load_config("atlantis")
     with pytest.raises(ConfigError, match="does not exist"):
         load_config(tmp_path / "missing.yaml")

@@ -26,7 +26,7 @@ from jaxround.rollout import make_episode_runner, vehicle_records
 from jaxround.schedule import Schedule as NumpySchedule
 from jaxround.schedule import make_schedule, n_av_at
 from jaxround.state import EnvParams, EnvState, Schedule
-from tests.conftest import builtin_dict, small_config
+from tests.conftest import builtin_dict, small_config, tree_equal
 
 #: The small scenario: milan's network and drivers, 36 vehicles in 90 s (0.4
 #: vehicles/s, milan's 1540/h), 4 slots, 10 s episodes for the auto-reset.
@@ -59,16 +59,6 @@ NAN_WHERE_UNREGISTERED = "finite:registrations."
 
 def small_scenario() -> ScenarioConfig:
     return small_config(n_vehicles=N_SMALL, duration_s=DURATION_SMALL)
-
-
-def tree_equal(a: Any, b: Any) -> bool:
-    """Bitwise equality of two pytrees (nan equal to nan)."""
-    la, ta = jax.tree.flatten(a)
-    lb, tb = jax.tree.flatten(b)
-    return ta == tb and all(
-        np.array_equal(np.asarray(x), np.asarray(y), equal_nan=True)
-        for x, y in zip(la, lb, strict=True)
-    )
 
 
 def tree_close(a: Any, b: Any) -> bool:

@@ -1,0 +1,268 @@
+"""PPO settings: one frozen dataclass, loaded strictly from YAML.
+
+    cfg = load_ppo_config("ppo_milan")          # or a path to a YAML file
+    cfg = cfg.replace(seed=3, total_env_steps=10_000)
+    scenario = cfg.training_scenario()          # the short training episodes
+
+An unknown key, a value of the wrong type or out of range raises
+`jaxround.config.ConfigError` naming the field (``lr: -0.1, expected > 0``)
+before anything runs. Derived numbers (`num_updates`, `minibatch_size`) are
+properties, never stored.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import typing
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from jaxround.config import (
+    OBSERVERS,
+    ConfigError,
+    ScenarioConfig,
+    config_from_dict,
+    read_yaml,
+)
+from jaxround.config import load_config as load_scenario
+
+#: Activations of the policy and value MLPs.
+ACTIVATIONS = ("tanh", "relu")
+
+
+@dataclass(frozen=True)
+class PPOConfig:
+    """Everything `agents.ppo.make_train` needs. One env step steps all M slots."""
+
+    scenario: str = "milan"  # built-in scenario name or YAML path (network, drivers)
+    demand_window_s: float = 300.0  # training demand horizon, s; the scenario's rate
+    episode_s: float = 360.0  # training episode length, s (window plus a drain)
+    max_vehicles: int = 32  # vehicle slots M per roundabout
+    penetrations: tuple[float, ...] = (1.0,)  # AV shares; env i uses entry i % len
+    observer: str = ""  # the AVs' observer; empty: the scenario's agent.observer
+    n_envs: int = 64  # roundabouts stepped side by side (split over devices)
+    n_steps: int = 64  # env steps per rollout, per roundabout
+    total_env_steps: int = 1_000_000  # env steps over all roundabouts and updates
+    gamma: float = 0.99  # discount per step of dt
+    gae_lambda: float = 0.95  # GAE lambda
+    clip_eps: float = 0.2  # PPO ratio clip, also the value clip
+    vf_coef: float = 0.5  # weight of the value loss
+    ent_coef: float = 0.0  # weight of the entropy bonus
+    lr: float = 3e-4  # Adam learning rate (start value when annealed)
+    anneal_lr: bool = True  # decay the learning rate linearly to 0
+    max_grad_norm: float = 0.5  # global gradient-norm clip
+    epochs: int = 4  # passes over each rollout
+    minibatches: int = 4  # minibatches per epoch (of whole env steps, M slots each)
+    reward_scale: float = 1.0  # rewards are multiplied by this before GAE
+    hidden: tuple[int, ...] = (64, 64)  # MLP layer widths (actor and critic alike)
+    activation: str = "tanh"  # "tanh" or "relu"
+    centralised: bool = False  # append the mean of the other vehicles' obs rows
+    checkpoint_every: int = 10  # updates between checkpoints (CLI)
+    keep_checkpoints: int = 3  # checkpoints kept on disk (CLI)
+    seed: int = 0  # PRNG seed of the whole run
+
+    # ------------------------------------------------------------ derived
+
+    @property
+    def env_steps_per_update(self) -> int:
+        """Env steps of one rollout over all roundabouts: n_envs * n_steps."""
+        return self.n_envs * self.n_steps
+
+    @property
+    def num_updates(self) -> int:
+        """PPO updates of a run: total_env_steps // env_steps_per_update."""
+        return self.total_env_steps // self.env_steps_per_update
+
+    @property
+    def minibatch_env_steps(self) -> int:
+        """Env steps (of M slot samples each) per minibatch."""
+        return self.env_steps_per_update // self.minibatches
+
+    @property
+    def minibatch_size(self) -> int:
+        """Slot samples per minibatch (agents and masked-out slots together)."""
+        return self.minibatch_env_steps * self.max_vehicles
+
+    # ------------------------------------------------------------ checks
+
+    def validate(self) -> None:
+        """Raise `ConfigError` naming the first bad field."""
+        for name in ("demand_window_s", "episode_s", "lr", "clip_eps"):
+            _require(getattr(self, name) > 0, name, getattr(self, name), "> 0")
+        for name in ("vf_coef", "ent_coef", "max_grad_norm", "reward_scale"):
+            _require(getattr(self, name) >= 0, name, getattr(self, name), ">= 0")
+        for name in (
+            "max_vehicles",
+            "n_envs",
+            "n_steps",
+            "total_env_steps",
+            "epochs",
+            "minibatches",
+            "checkpoint_every",
+            "keep_checkpoints",
+        ):
+            _require(getattr(self, name) >= 1, name, getattr(self, name), ">= 1")
+        _require(self.seed >= 0, "seed", self.seed, ">= 0")
+        _require(0 < self.gamma <= 1, "gamma", self.gamma, "in (0, 1]")
+        _require(0 <= self.gae_lambda <= 1, "gae_lambda", self.gae_lambda, "in [0, 1]")
+        if not self.penetrations:
+            raise ConfigError("penetrations: empty, expected at least one share")
+        for i, p in enumerate(self.penetrations):
+            _require(0 <= p <= 1, f"penetrations[{i}]", p, "a share in [0, 1]")
+        if self.observer and self.observer not in OBSERVERS:
+            raise ConfigError(
+                f"observer: {self.observer!r}, expected '' or one of {OBSERVERS}"
+            )
+        if self.activation not in ACTIVATIONS:
+            raise ConfigError(
+                f"activation: {self.activation!r}, expected one of {ACTIVATIONS}"
+            )
+        if not self.hidden:
+            raise ConfigError("hidden: empty, expected at least one layer width")
+        for i, h in enumerate(self.hidden):
+            _require(h >= 1, f"hidden[{i}]", h, ">= 1")
+        if self.env_steps_per_update % self.minibatches:
+            raise ConfigError(
+                f"minibatches: {self.minibatches} does not divide n_envs * n_steps "
+                f"= {self.env_steps_per_update}"
+            )
+        if self.num_updates < 1:
+            raise ConfigError(
+                f"total_env_steps: {self.total_env_steps} is less than one update "
+                f"(n_envs * n_steps = {self.env_steps_per_update})"
+            )
+
+    def replace(self, **changes: Any) -> PPOConfig:
+        """A validated copy with these fields replaced (strict, as from YAML)."""
+        return ppo_config_from_dict({**self.to_dict(), **changes})
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data (lists for tuples), as written to YAML."""
+        return {
+            k: list(v) if isinstance(v, tuple) else v
+            for k, v in dataclasses.asdict(self).items()
+        }
+
+    def to_yaml(self) -> str:
+        return yaml.safe_dump(self.to_dict(), sort_keys=False)
+
+    # ------------------------------------------------------------ scenario
+
+    def base_scenario(self) -> ScenarioConfig:
+        """The scenario as given (full demand), with `observer` applied."""
+        cfg = load_scenario(self.scenario)
+        if not self.observer:
+            return cfg
+        d = cfg.to_dict()
+        d["agent"]["observer"] = self.observer
+        return config_from_dict(d)
+
+    def training_scenario(self) -> ScenarioConfig:
+        """The scenario cut to `demand_window_s` at its own rate of vehicles.
+
+        The window keeps the scenario's vehicles per second:
+        ``round(n_vehicles * demand_window_s / duration_s)`` vehicles (at least
+        one); the first penetration is the config's default share of AVs.
+        """
+        base = self.base_scenario()
+        d = base.to_dict()
+        rate = base.demand.n_vehicles / base.demand.duration_s
+        d["demand"]["n_vehicles"] = max(1, round(rate * self.demand_window_s))
+        d["demand"]["duration_s"] = self.demand_window_s
+        d["simulation"]["penetration"] = self.penetrations[0]
+        return config_from_dict(d)
+
+
+# --------------------------------------------------------------------------- loading
+
+
+def builtin_ppo_configs() -> list[str]:
+    """Names of the PPO configs shipped in the `configs` package (``ppo_*.yaml``)."""
+    files = resources.files("configs").iterdir()
+    return sorted(
+        p.name[:-5]
+        for p in files
+        if p.name.startswith("ppo_") and p.name.endswith(".yaml")
+    )
+
+
+def load_ppo_config(source: str | Path | None = None) -> PPOConfig:
+    """Load and validate a PPO config.
+
+    Args:
+        source: a YAML path or the name of a built-in PPO config
+            (``"ppo_milan"``, the default).
+
+    Returns:
+        The validated `PPOConfig`.
+
+    Raises:
+        ConfigError: the file is missing, not YAML, or a field is wrong.
+    """
+    source = "ppo_milan" if source is None else source
+    data = read_yaml(source, builtin_ppo_configs(), "PPO")
+    return ppo_config_from_dict(data if data is not None else {})
+
+
+def ppo_config_from_dict(data: Any) -> PPOConfig:
+    """Build and validate a `PPOConfig` from plain data; missing keys take defaults."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"PPO config: expected a mapping, got {type(data).__name__}")
+    fields = {f.name: f for f in dataclasses.fields(PPOConfig)}
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise ConfigError(
+            f"PPO config: unknown key {unknown[0]!r} (allowed: {', '.join(fields)})"
+        )
+    hints = typing.get_type_hints(PPOConfig)
+    kwargs = {name: _convert(hints[name], v, name) for name, v in data.items()}
+    cfg = PPOConfig(**kwargs)
+    cfg.validate()
+    return cfg
+
+
+def _convert(tp: Any, value: Any, where: str) -> Any:
+    """`value` as the annotated type `tp` (bool, int, float, str, tuple[...])."""
+    if typing.get_origin(tp) is tuple:
+        if not isinstance(value, list | tuple):
+            raise ConfigError(f"{where}: expected a list, got {value!r}")
+        item_tp = typing.get_args(tp)[0]
+        return tuple(_convert(item_tp, v, f"{where}[{i}]") for i, v in enumerate(value))
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: expected true or false, got {value!r}")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{where}: expected an integer, got {value!r}")
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"{where}: expected a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ConfigError(f"{where}: expected a finite number, got {value!r}")
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{where}: expected a string, got {value!r}")
+        return value
+    raise TypeError(f"unsupported config type {tp!r}")  # pragma: no cover
+
+
+def _require(ok: bool, where: str, value: Any, expected: str) -> None:
+    if not ok:
+        raise ConfigError(f"{where}: {value}, expected {expected}")
+
+
+__all__ = [
+    "ACTIVATIONS",
+    "PPOConfig",
+    "builtin_ppo_configs",
+    "load_ppo_config",
+    "ppo_config_from_dict",
+]

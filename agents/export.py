@@ -1,0 +1,236 @@
+"""The trained policy as plain arrays: ``policy.npz`` plus ``policy.json``.
+
+    export_policy(runner.params, layout, "out/policy")   # writes both files
+    act = load_policy_numpy("out/policy.npz")             # NumPy only
+    accel, change = act(obs, mask)                         # obs (M, D), mask (M,)
+
+The ``.npz`` holds the actor's weights (no pickles); the ``.json`` its layout
+(layer widths, activation, centralised input, observer and its size, the
+bounds of the acceleration command, the scenario it was trained on). The
+exported policy acts deterministically: the mean command clipped to the
+bounds, and the likelier lane choice. `policy_action` computes it with
+NumPy or JAX from the same code as the trained network (`agents.networks`).
+There is no observation normalisation: the observer scales its own features.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import zipfile
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+
+from agents import networks
+
+#: Version of the file layout; a reader refuses other versions.
+FORMAT = "jaxround-policy/1"
+#: File stem used inside a training folder.
+POLICY_STEM = "policy"
+
+
+@dataclass(frozen=True)
+class PolicyLayout:
+    """What a reader needs besides the weights to run the policy."""
+
+    observer: str  # name of the observer the policy reads (jaxround.observe)
+    obs_size: int  # numbers per observation row, D
+    hidden: tuple[int, ...]  # MLP layer widths
+    activation: str  # "tanh" or "relu"
+    centralised: bool  # rows carry the mean of the other vehicles' rows
+    accel_bounds: tuple[float, float]  # lowest and highest command, m/s^2
+    scenario: str = ""  # scenario the policy was trained on (name or path)
+    scenario_fingerprint: str = ""  # its roads and drivers (ScenarioConfig method)
+
+    def array_shapes(self) -> dict[str, tuple[int, ...]]:
+        """Name -> shape of every array of the ``.npz``."""
+        shapes: dict[str, tuple[int, ...]] = {}
+        width = networks.n_inputs(self.obs_size, self.centralised)
+        for i, h in enumerate(self.hidden):
+            shapes[f"actor_{i}/kernel"] = (width, h)
+            shapes[f"actor_{i}/bias"] = (h,)
+            width = h
+        shapes["accel_mean/kernel"] = (width, 1)
+        shapes["accel_mean/bias"] = (1,)
+        shapes["lane_logits/kernel"] = (width, networks.N_LANE_CHOICES)
+        shapes["lane_logits/bias"] = (networks.N_LANE_CHOICES,)
+        shapes["log_std"] = ()
+        return shapes
+
+
+def policy_paths(path: str | Path) -> tuple[Path, Path]:
+    """(npz, json) paths of a policy given as ``.npz``, ``.json``, stem or folder."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / POLICY_STEM
+    if path.suffix in (".npz", ".json"):
+        path = path.with_suffix("")
+    return path.with_name(path.name + ".npz"), path.with_name(path.name + ".json")
+
+
+def export_policy(
+    params: Any, layout: PolicyLayout, path: str | Path
+) -> tuple[Path, Path]:
+    """Write the actor's weights and layout.
+
+    Args:
+        params: the `ActorCritic` variables (``{"params": {...}}``), unbatched.
+        layout: the network's layout.
+        path: a stem, ``.npz`` or ``.json`` path, or a folder (``policy.*``).
+
+    Returns:
+        The (npz, json) paths written.
+    """
+    tree = params["params"]
+    arrays: dict[str, np.ndarray] = {"log_std": np.asarray(tree["log_std"])}
+    for name in layout.array_shapes():
+        if "/" in name:
+            layer, leaf = name.split("/")
+            arrays[name] = np.asarray(tree[layer][leaf])
+    _check_shapes(arrays, layout, "params")
+    npz, js = policy_paths(path)
+    npz.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(npz, **{k: v.astype(np.float32) for k, v in arrays.items()})
+    meta = {"format": FORMAT, **dataclasses.asdict(layout)}
+    meta["arrays"] = {k: list(v) for k, v in layout.array_shapes().items()}
+    js.write_text(json.dumps(meta, indent=2) + "\n")
+    return npz, js
+
+
+def load_policy(path: str | Path) -> tuple[dict[str, np.ndarray], PolicyLayout]:
+    """Read an exported policy: (float32 arrays by name, layout).
+
+    Raises:
+        FileNotFoundError: a file is missing.
+        ValueError: the files are damaged or do not match each other.
+    """
+    npz, js = policy_paths(path)
+    for f in (npz, js):
+        if not f.is_file():
+            raise FileNotFoundError(f"policy file {f} does not exist")
+    try:
+        meta = json.loads(js.read_text())
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{js}: not valid JSON ({err})") from None
+    if meta.get("format") != FORMAT:
+        raise ValueError(f"{js}: format {meta.get('format')!r}, expected {FORMAT!r}")
+    names = [f.name for f in dataclasses.fields(PolicyLayout)]
+    try:
+        layout = PolicyLayout(
+            observer=str(meta["observer"]),
+            obs_size=int(meta["obs_size"]),
+            hidden=tuple(int(h) for h in meta["hidden"]),
+            activation=str(meta["activation"]),
+            centralised=bool(meta["centralised"]),
+            accel_bounds=(
+                float(meta["accel_bounds"][0]),
+                float(meta["accel_bounds"][1]),
+            ),
+            scenario=str(meta.get("scenario", "")),
+            scenario_fingerprint=str(meta.get("scenario_fingerprint", "")),
+        )
+    except (KeyError, TypeError, IndexError, ValueError) as err:
+        raise ValueError(f"{js}: bad layout ({err!r}); fields: {names}") from None
+    try:
+        with np.load(npz, allow_pickle=False) as data:
+            arrays = {k: np.asarray(data[k], np.float32) for k in data.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
+        raise ValueError(f"{npz}: damaged or not a policy file ({err})") from None
+    _check_shapes(arrays, layout, str(npz))
+    return arrays, layout
+
+
+def check_scenario(layout: PolicyLayout, cfg: Any) -> None:
+    """Refuse a policy trained on other roads or drivers than `cfg`'s.
+
+    Args:
+        layout: the policy's layout.
+        cfg: a `jaxround.config.ScenarioConfig`.
+
+    Raises:
+        ValueError: naming both scenarios.
+    """
+    mine = cfg.roads_and_drivers_fingerprint()
+    if layout.scenario_fingerprint and layout.scenario_fingerprint != mine:
+        raise ValueError(
+            f"the policy was trained on scenario {layout.scenario!r} (roads and "
+            f"drivers {layout.scenario_fingerprint}); {cfg.name!r} has other roads "
+            f"or drivers ({mine})"
+        )
+
+
+def policy_action(
+    arrays: dict[str, Any],
+    layout: PolicyLayout,
+    obs: Any,
+    mask: Any,
+    xp: ModuleType = np,
+) -> tuple[Any, Any]:
+    """The deterministic action of every slot, in NumPy or JAX.
+
+    Args:
+        arrays: the weights (`load_policy`), NumPy or JAX arrays.
+        layout: the layout.
+        obs: float (..., M, D) observation rows.
+        mask: bool (..., M) slots that hold a vehicle.
+        xp: `numpy` or `jax.numpy`.
+
+    Returns:
+        (accel float (..., M) in `accel_bounds`, change bool (..., M)).
+    """
+    act = networks.activation(layout.activation, xp)
+    x = networks.policy_inputs(
+        xp.asarray(obs, xp.float32), xp.asarray(mask, bool), layout.centralised, xp
+    )
+    for i in range(len(layout.hidden)):
+        x = act(x @ arrays[f"actor_{i}/kernel"] + arrays[f"actor_{i}/bias"])
+    mean = (x @ arrays["accel_mean/kernel"] + arrays["accel_mean/bias"])[..., 0]
+    logits = x @ arrays["lane_logits/kernel"] + arrays["lane_logits/bias"]
+    return networks.deterministic_action(mean, logits, layout.accel_bounds, xp)
+
+
+def load_policy_numpy(
+    path: str | Path,
+) -> Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """A NumPy-only ``act(obs (M, D), mask (M,)) -> (accel (M,), change (M,))``."""
+    arrays, layout = load_policy(path)
+
+    def act(obs: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        obs = np.asarray(obs, np.float32)
+        if obs.shape[-1] != layout.obs_size:
+            raise ValueError(
+                f"observation rows have {obs.shape[-1]} numbers, the policy reads "
+                f"{layout.obs_size} ({layout.observer!r} observer)"
+            )
+        return policy_action(arrays, layout, obs, mask, np)
+
+    return act
+
+
+def _check_shapes(arrays: dict[str, Any], layout: PolicyLayout, where: str) -> None:
+    for name, shape in layout.array_shapes().items():
+        if name not in arrays:
+            raise ValueError(f"{where}: array {name!r} is missing")
+        if tuple(np.shape(arrays[name])) != shape:
+            raise ValueError(
+                f"{where}: {name} has shape {tuple(np.shape(arrays[name]))}, "
+                f"the layout says {shape}"
+            )
+
+
+__all__ = [
+    "FORMAT",
+    "check_scenario",
+    "POLICY_STEM",
+    "PolicyLayout",
+    "export_policy",
+    "load_policy",
+    "load_policy_numpy",
+    "policy_action",
+    "policy_paths",
+]

@@ -1,0 +1,210 @@
+"""The actor-critic every AV shares, and its action distribution.
+
+One MLP reads one slot's observation row and gives
+
+- a Gaussian over the acceleration command (mean per slot, one learned,
+  state-independent log-std),
+- two logits over the lane-change decision (keep, change),
+- a value.
+
+The forward pass is a pure function of ``(params, obs (M, D), mask (M,))``:
+`policy_inputs` builds each row's input (optionally with the mean of the
+other vehicles' rows), written once for both NumPy and JAX so the exported
+policy (`agents.export`) computes exactly what was trained.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from types import ModuleType
+from typing import NamedTuple
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+#: Lane-change choices: index 0 keep the lane, 1 change.
+N_LANE_CHOICES = 2
+_LOG_2PI = math.log(2.0 * math.pi)
+
+
+class PolicyOutput(NamedTuple):
+    """What the network says about M slots (leading batch dims allowed).
+
+    Attributes:
+        accel_mean: float (..., M) mean acceleration command, m/s^2.
+        log_std: float () log standard deviation of the command.
+        lane_logits: float (..., M, 2) logits of keep / change.
+        value: float (..., M) state value of each slot's vehicle.
+    """
+
+    accel_mean: jax.Array
+    log_std: jax.Array
+    lane_logits: jax.Array
+    value: jax.Array
+
+
+def activation(name: str, xp: ModuleType = jnp) -> Callable:
+    """The activation called `name` ("tanh" or "relu") in NumPy or JAX."""
+    if name == "tanh":
+        return xp.tanh
+    if name == "relu":
+        return lambda x: xp.maximum(x, 0.0)
+    raise ValueError(f"activation: {name!r}, expected 'tanh' or 'relu'")
+
+
+def policy_inputs(obs, mask, centralised: bool, xp: ModuleType = jnp):
+    """Each slot's network input, float (..., M, D) or (..., M, 2D).
+
+    Args:
+        obs: float (..., M, D) observation rows.
+        mask: bool (..., M) slots that hold a vehicle.
+        centralised: append to row i the mean of the rows of the *other*
+            occupied slots (zeros when there are none): permutation-invariant
+            information about the rest of the roundabout.
+        xp: `numpy` or `jax.numpy`.
+
+    Returns:
+        The rows (obs itself when not centralised).
+    """
+    if not centralised:
+        return obs
+    m = mask.astype(obs.dtype)[..., None]  # (..., M, 1)
+    own = obs * m
+    total = own.sum(axis=-2, keepdims=True)  # (..., 1, D)
+    count = m.sum(axis=-2, keepdims=True)  # (..., 1, 1)
+    others = (total - own) / xp.maximum(count - m, 1.0)  # (..., M, D)
+    return xp.concatenate([obs, others], axis=-1)
+
+
+class ActorCritic(nn.Module):
+    """Separate actor and critic MLPs over one slot's input row, shared by slots.
+
+    Attributes:
+        hidden: layer widths, e.g. (64, 64).
+        activation: "tanh" or "relu".
+        centralised: see `policy_inputs`.
+    """
+
+    hidden: Sequence[int]
+    activation: str = "tanh"
+    centralised: bool = False
+
+    @nn.compact
+    def __call__(self, obs: jax.Array, mask: jax.Array) -> PolicyOutput:
+        """Args: obs float (..., M, D); mask bool (..., M). Returns `PolicyOutput`."""
+        act = activation(self.activation)
+        x = policy_inputs(obs, mask, self.centralised)
+        init = nn.initializers.orthogonal
+
+        a = x
+        for i, width in enumerate(self.hidden):
+            a = act(
+                nn.Dense(width, kernel_init=init(math.sqrt(2)), name=f"actor_{i}")(a)
+            )
+        accel_mean = nn.Dense(1, kernel_init=init(0.01), name="accel_mean")(a)[..., 0]
+        lane_logits = nn.Dense(
+            N_LANE_CHOICES, kernel_init=init(0.01), name="lane_logits"
+        )(a)
+        log_std = self.param("log_std", nn.initializers.zeros, ())
+
+        c = x
+        for i, width in enumerate(self.hidden):
+            c = act(
+                nn.Dense(width, kernel_init=init(math.sqrt(2)), name=f"critic_{i}")(c)
+            )
+        value = nn.Dense(1, kernel_init=init(1.0), name="value")(c)[..., 0]
+        return PolicyOutput(accel_mean, log_std, lane_logits, value)
+
+
+# --------------------------------------------------------------------------- actions
+
+
+def log_prob(out: PolicyOutput, accel: jax.Array, change: jax.Array) -> jax.Array:
+    """Joint log-probability of (acceleration, lane choice), float (..., M).
+
+    Args:
+        out: the network's output.
+        accel: float (..., M) acceleration commands (before the env clips them).
+        change: int (..., M) lane choice, 0 or 1.
+    """
+    z = (accel - out.accel_mean) * jnp.exp(-out.log_std)
+    gauss = -0.5 * z**2 - out.log_std - 0.5 * _LOG_2PI
+    lane = jax.nn.log_softmax(out.lane_logits)
+    lane = jnp.take_along_axis(lane, change[..., None], axis=-1)[..., 0]
+    return gauss + lane
+
+
+def entropy(out: PolicyOutput) -> jax.Array:
+    """Entropy of the joint action distribution, float (..., M)."""
+    gauss = out.log_std + 0.5 * (1.0 + _LOG_2PI)
+    logp = jax.nn.log_softmax(out.lane_logits)
+    lane = -jnp.sum(jnp.exp(logp) * logp, axis=-1)
+    return gauss + lane
+
+
+def sample(out: PolicyOutput, key: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Draw actions for every slot.
+
+    Returns:
+        (accel float (..., M), change int32 (..., M), log_prob float (..., M)).
+    """
+    k_a, k_l = jax.random.split(key)
+    noise = jax.random.normal(k_a, out.accel_mean.shape, out.accel_mean.dtype)
+    accel = out.accel_mean + jnp.exp(out.log_std) * noise
+    change = jax.random.categorical(k_l, out.lane_logits).astype(jnp.int32)
+    return accel, change, log_prob(out, accel, change)
+
+
+def env_action(accel: jax.Array, change: jax.Array) -> jax.Array:
+    """The environment's action, float (..., M, 2): command and change flag (0/1)."""
+    return jnp.stack([accel, change.astype(accel.dtype)], axis=-1)
+
+
+def deterministic_action(
+    accel_mean, lane_logits, bounds: tuple[float, float], xp: ModuleType = jnp
+):
+    """The policy's mode: the mean command clipped to `bounds`, the likelier lane.
+
+    Args:
+        accel_mean: float (..., M).
+        lane_logits: float (..., M, 2).
+        bounds: (lowest, highest) command, m/s^2.
+        xp: `numpy` or `jax.numpy`.
+
+    Returns:
+        (accel float (..., M), change bool (..., M)).
+    """
+    accel = xp.clip(accel_mean, bounds[0], bounds[1])
+    change = lane_logits[..., 1] > lane_logits[..., 0]
+    return accel, change
+
+
+def n_inputs(obs_size: int, centralised: bool) -> int:
+    """Width of a network input row."""
+    return 2 * obs_size if centralised else obs_size
+
+
+def init_params(
+    network: ActorCritic, key: jax.Array, obs_size: int, max_vehicles: int
+) -> dict:
+    """Fresh parameters for rows of `obs_size` features."""
+    obs = jnp.zeros((max_vehicles, obs_size), jnp.float32)
+    return jax.jit(network.init)(key, obs, jnp.ones(max_vehicles, bool))
+
+
+__all__ = [
+    "N_LANE_CHOICES",
+    "ActorCritic",
+    "PolicyOutput",
+    "activation",
+    "deterministic_action",
+    "entropy",
+    "env_action",
+    "init_params",
+    "log_prob",
+    "n_inputs",
+    "policy_inputs",
+    "sample",
+]

@@ -1,0 +1,458 @@
+"""PPO (`agents`): GAE by hand, the masked loss, the network and its export,
+the config, and the training program (chunks against the whole run, two
+seeds on two devices).
+
+Compiling a training update takes tens of seconds on a CPU (it holds the
+environment's step), so only two tests build one, on the tiny config below,
+and these modules compile with `jax_disable_most_optimizations` (the tiny
+programs run in milliseconds either way) into a persistent cache shared with
+`test_train_cli.py`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from agents import networks
+from agents.config import PPOConfig, load_ppo_config, ppo_config_from_dict
+from agents.export import (
+    PolicyLayout,
+    export_policy,
+    load_policy,
+    load_policy_numpy,
+    policy_action,
+)
+from agents.losses import Batch, compute_gae, ppo_loss
+from agents.ppo import Trainer
+from jaxround.config import ConfigError
+from tests.conftest import tree_equal
+
+ROOT = Path(__file__).resolve().parents[1]
+#: The tiny training run of the tests: milan's network, 9 vehicles in 20 s,
+#: 10 s episodes (a reset every 20 steps), 8 slots, 4 roundabouts, 4 updates.
+TINY = dict(
+    demand_window_s=20.0,
+    episode_s=10.0,
+    max_vehicles=8,
+    n_envs=4,
+    n_steps=8,
+    total_env_steps=4 * 8 * 4,
+    hidden=(16, 16),
+    epochs=2,
+    minibatches=2,
+    checkpoint_every=2,
+    reward_scale=0.1,
+)
+
+
+def tiny_config(**changes: Any) -> PPOConfig:
+    return PPOConfig(**TINY).replace(**changes)
+
+
+@contextlib.contextmanager
+def quick_compilation(cache_dir: Path) -> Iterator[None]:
+    """Compile with few optimisations, into a persistent cache; restore after."""
+    from jax.experimental.compilation_cache import compilation_cache as cc
+
+    old_dir = jax.config.jax_compilation_cache_dir
+    old_opt = jax.config.values["jax_disable_most_optimizations"]
+    jax.config.update("jax_compilation_cache_dir", str(cache_dir))
+    jax.config.update("jax_disable_most_optimizations", True)
+    try:
+        yield
+    finally:
+        jax.config.update("jax_compilation_cache_dir", old_dir)
+        jax.config.update("jax_disable_most_optimizations", old_opt)
+        cc.reset_cache()
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _quick_compilation(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    with quick_compilation(tmp_path_factory.getbasetemp() / "xla_cache"):
+        yield
+
+
+# --------------------------------------------------------------------------- GAE
+
+
+def test_gae_by_hand() -> None:
+    """Three slots over T=4 steps, gamma 0.9, lambda 0.8 (gamma * lambda = 0.72).
+
+    slot 0: its vehicle leaves in step 1 (no bootstrap), a new one enters;
+            the episode ends with step 2 (bootstrap from its own value).
+    slot 1: an agent until the reset at step 2, empty afterwards (garbage data).
+    slot 2: an agent at t=0, 1, then no agent without a termination
+            (bootstrap from its own value, defensively).
+    """
+    f, t = False, True
+    reward = np.array([[1, 1, 1], [2, 1, 1], [3, 1, 0], [4, 99, 0]], np.float32)
+    value = np.array([[0.5, 1, 2], [1, 1, 2], [1.5, 1, 0], [2, -50, 0]], np.float32)
+    agent = np.array([[t, t, t], [t, t, t], [t, t, f], [t, f, f]])
+    terminated = np.array([[f, f, f], [t, f, f], [f, f, f], [f, f, f]])
+    truncated = np.array([[f] * 3, [f] * 3, [t] * 3, [f] * 3])
+    adv, target = compute_gae(
+        jnp.asarray(reward), jnp.asarray(value), jnp.asarray(agent),
+        jnp.asarray(terminated), jnp.asarray(truncated),
+        jnp.array([3.0, 7.0, 5.0]), jnp.array([t, f, f]), 0.9, 0.8,
+    )  # fmt: skip
+    expected = np.array(
+        [
+            [1.4 + 0.72 * 1.0, 0.9 + 0.72 * (0.9 + 0.72 * 0.9), 0.8 + 0.72 * 0.8],
+            [2 - 1.0, 0.9 + 0.72 * 0.9, 1 + 0.9 * 2 - 2],
+            [3 + 0.9 * 1.5 - 1.5, 1 + 0.9 * 1 - 1, 0],
+            [4 + 0.9 * 3 - 2, 0, 0],
+        ]
+    )
+    np.testing.assert_allclose(np.asarray(adv), expected, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(
+        np.asarray(target), np.where(agent, expected + value, 0), rtol=1e-6, atol=1e-6
+    )
+
+
+def gae_reference(reward, value, agent, terminated, truncated, last_v, last_a, g, lam):
+    """Per-slot loops: walk each trajectory backwards."""
+    n_t, n_s = reward.shape
+    value_ext = np.vstack([value, last_v[None]])
+    agent_ext = np.vstack([agent, last_a[None]])
+    adv = np.zeros((n_t, n_s))
+    for s in range(n_s):
+        acc = 0.0
+        for t in reversed(range(n_t)):
+            if not agent[t, s]:
+                acc = 0.0
+                continue
+            if terminated[t, s]:
+                nxt, cont = 0.0, False
+            elif truncated[t, s] or not agent_ext[t + 1, s]:
+                nxt, cont = value[t, s], False
+            else:
+                nxt, cont = value_ext[t + 1, s], True
+            delta = reward[t, s] + g * nxt - value[t, s]
+            acc = delta + (g * lam * acc if cont else 0.0)
+            adv[t, s] = acc
+    return adv
+
+
+def test_gae_matches_per_slot_loops() -> None:
+    rng = np.random.default_rng(0)
+    n_t, n_s = 12, 7
+    reward = rng.normal(size=(n_t, n_s)).astype(np.float32)
+    value = rng.normal(size=(n_t, n_s)).astype(np.float32)
+    agent = rng.uniform(size=(n_t, n_s)) < 0.7
+    terminated = agent & (rng.uniform(size=(n_t, n_s)) < 0.2)
+    truncated = np.repeat(rng.uniform(size=(n_t, 1)) < 0.15, n_s, axis=1)
+    last_v = rng.normal(size=n_s).astype(np.float32)
+    last_a = rng.uniform(size=n_s) < 0.5
+    args = (reward, value, agent, terminated, truncated, last_v, last_a, 0.97, 0.9)
+    adv, _ = compute_gae(*map(jnp.asarray, args[:7]), 0.97, 0.9)
+    np.testing.assert_allclose(np.asarray(adv), gae_reference(*args), atol=1e-5)
+
+
+# --------------------------------------------------------------------------- loss
+
+
+def random_batch(rng: np.random.Generator, e: int, m: int, d: int) -> Batch:
+    active = rng.uniform(size=(e, m)) < 0.8
+    return Batch(
+        obs=jnp.asarray(rng.normal(size=(e, m, d)) * active[..., None], jnp.float32),
+        active=jnp.asarray(active),
+        agent=jnp.asarray(active & (rng.uniform(size=(e, m)) < 0.6)),
+        accel=jnp.asarray(rng.normal(size=(e, m)), jnp.float32),
+        change=jnp.asarray(rng.integers(0, 2, (e, m)), jnp.int32),
+        log_prob=jnp.asarray(rng.normal(size=(e, m)) - 2.0, jnp.float32),
+        value=jnp.asarray(rng.normal(size=(e, m)), jnp.float32),
+        advantage=jnp.asarray(rng.normal(size=(e, m)), jnp.float32),
+        target=jnp.asarray(rng.normal(size=(e, m)), jnp.float32),
+    )
+
+
+def loss_and_grads(network: networks.ActorCritic, params: Any, batch: Batch):
+    @jax.jit
+    def fn(params: Any, batch: Batch):
+        grad_fn = jax.value_and_grad(ppo_loss, has_aux=True)
+        return grad_fn(params, network.apply, batch, 0.2, 0.5, 0.01)
+
+    (loss, aux), grads = fn(params, batch)
+    return loss, aux, grads
+
+
+@pytest.mark.parametrize("centralised", [False, True])
+def test_loss_ignores_non_agent_slots(centralised: bool) -> None:
+    """Whatever HV and empty slots hold leaves the loss and its gradient alone
+    (with the centralised input, HV rows' observations are inputs by design:
+    there only empty slots' observations may change)."""
+    rng = np.random.default_rng(1)
+    batch = random_batch(rng, 6, 5, 7)
+    network = networks.ActorCritic(hidden=(8, 8), centralised=centralised)
+    params = networks.init_params(network, jax.random.PRNGKey(0), 7, 5)
+    loss, aux, grads = loss_and_grads(network, params, batch)
+
+    other = ~batch.agent
+    may_change_obs = other if not centralised else ~batch.active
+
+    def garble(x: jax.Array, where: jax.Array, scale: float) -> jax.Array:
+        noise = jnp.asarray(rng.normal(size=x.shape) * scale, x.dtype)
+        where = where.reshape(where.shape + (1,) * (x.ndim - where.ndim))
+        return jnp.where(where, x + noise, x)
+
+    garbled = batch._replace(
+        obs=garble(batch.obs, may_change_obs, 100.0),
+        accel=garble(batch.accel, other, 1e4),
+        change=jnp.where(other, 1 - batch.change, batch.change),
+        log_prob=garble(batch.log_prob, other, 1e3),
+        value=garble(batch.value, other, 1e3),
+        advantage=garble(batch.advantage, other, 1e3),
+        target=garble(batch.target, other, 1e3),
+    )
+    loss2, aux2, grads2 = loss_and_grads(network, params, garbled)
+    np.testing.assert_allclose(float(loss2), float(loss), rtol=1e-6)
+    for k in aux:
+        np.testing.assert_allclose(float(aux2[k]), float(aux[k]), rtol=1e-6, err_msg=k)
+    for g, g2 in zip(jax.tree.leaves(grads), jax.tree.leaves(grads2), strict=True):
+        np.testing.assert_allclose(np.asarray(g2), np.asarray(g), rtol=1e-5, atol=1e-7)
+    # an agent's data does count
+    moved = batch._replace(advantage=garble(batch.advantage, batch.agent, 1.0))
+    assert float(loss_and_grads(network, params, moved)[0]) != float(loss)
+
+
+# --------------------------------------------------------------------------- network
+
+
+def test_network_shapes_and_distribution() -> None:
+    m, d = 6, 5
+    network = networks.ActorCritic(hidden=(8,), activation="relu", centralised=True)
+    params = networks.init_params(network, jax.random.PRNGKey(0), d, m)
+    assert params["params"]["actor_0"]["kernel"].shape == (2 * d, 8)
+    obs = jnp.ones((3, m, d))
+    out = jax.jit(network.apply)(params, obs, jnp.ones((3, m), bool))
+    assert out.accel_mean.shape == (3, m) and out.value.shape == (3, m)
+    assert out.lane_logits.shape == (3, m, 2) and out.log_std.shape == ()
+    accel, change, logp = jax.jit(networks.sample)(out, jax.random.PRNGKey(1))
+    assert accel.shape == change.shape == logp.shape == (3, m)
+    gauss = jax.scipy.stats.norm.logpdf(accel, out.accel_mean, jnp.exp(out.log_std))
+    lane = jnp.take_along_axis(
+        jax.nn.log_softmax(out.lane_logits), change[..., None], -1
+    )[..., 0]
+    np.testing.assert_allclose(np.asarray(logp), np.asarray(gauss + lane), atol=1e-5)
+    action = networks.env_action(accel, change)
+    assert action.shape == (3, m, 2)
+
+
+def test_centralised_input_is_the_mean_of_the_others() -> None:
+    obs = np.array([[1.0], [2.0], [4.0], [8.0]], np.float32)
+    mask = np.array([True, True, True, False])
+    x = networks.policy_inputs(obs, mask, True, np)
+    np.testing.assert_allclose(x[:, 1], [3.0, 2.5, 1.5, 7.0 / 3.0])
+    np.testing.assert_allclose(x[:, 0], obs[:, 0])
+    lone = networks.policy_inputs(obs[:1], mask[:1], True, np)
+    assert lone[0, 1] == 0.0
+
+
+# --------------------------------------------------------------------------- export
+
+
+@pytest.mark.parametrize(
+    ("activation", "centralised"), [("tanh", False), ("relu", True)]
+)
+def test_export_round_trip(tmp_path: Path, activation: str, centralised: bool) -> None:
+    m, d = 9, 10
+    network = networks.ActorCritic(
+        hidden=(32, 16), activation=activation, centralised=centralised
+    )
+    params = networks.init_params(network, jax.random.PRNGKey(3), d, m)
+    # larger weights than at init, so the heads say something
+    params = jax.tree.map(lambda x: x * 5.0, params)
+    layout = PolicyLayout(
+        observer="paper", obs_size=d, hidden=(32, 16), activation=activation,
+        centralised=centralised, accel_bounds=(-4.5, 2.6), scenario="milan",
+    )  # fmt: skip
+    npz, js = export_policy(params, layout, tmp_path / "policy")
+    assert json.loads(js.read_text())["hidden"] == [32, 16]
+    rng = np.random.default_rng(0)
+    obs = rng.normal(size=(4, m, d)).astype(np.float32)
+    mask = rng.uniform(size=(4, m)) < 0.7
+    out = jax.jit(network.apply)(params, jnp.asarray(obs), jnp.asarray(mask))
+    accel_jax, change_jax = networks.deterministic_action(
+        out.accel_mean, out.lane_logits, layout.accel_bounds
+    )
+    act = load_policy_numpy(tmp_path)  # the folder finds policy.npz
+    for i in range(4):
+        accel, change = act(obs[i], mask[i])
+        assert accel.dtype == np.float32 and change.dtype == bool
+        np.testing.assert_allclose(accel, np.asarray(accel_jax[i]), atol=1e-5)
+        np.testing.assert_array_equal(change, np.asarray(change_jax[i]))
+    assert np.any(np.asarray(accel_jax) == 2.6) or np.any(np.asarray(accel_jax) < 0)
+    arrays, loaded = load_policy(npz)
+    assert loaded == layout
+    weights = {k: jnp.asarray(v) for k, v in arrays.items()}
+    accel_j, _ = jax.jit(lambda w, o, k: policy_action(w, loaded, o, k, jnp))(
+        weights, obs, mask
+    )
+    np.testing.assert_allclose(np.asarray(accel_j), np.asarray(accel_jax), atol=1e-5)
+    with pytest.raises(ValueError, match="numbers"):
+        act(obs[0, :, :4], mask[0])
+
+
+def test_export_refuses_mismatched_files(tmp_path: Path) -> None:
+    network = networks.ActorCritic(hidden=(4,))
+    params = networks.init_params(network, jax.random.PRNGKey(0), 3, 2)
+    layout = PolicyLayout("rich", 3, (4,), "tanh", False, (-4.0, 2.0))
+    _, js = export_policy(params, layout, tmp_path / "p.npz")
+    meta = json.loads(js.read_text())
+    meta["hidden"] = [5]
+    js.write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match="actor_0/kernel has shape"):
+        load_policy(tmp_path / "p")
+    with pytest.raises(FileNotFoundError):
+        load_policy(tmp_path / "missing")
+
+
+# --------------------------------------------------------------------------- config
+
+
+def test_builtin_config_and_derived_values() -> None:
+    cfg = load_ppo_config()
+    assert cfg == load_ppo_config("ppo_milan")
+    assert cfg.num_updates == cfg.total_env_steps // (cfg.n_envs * cfg.n_steps)
+    assert cfg.minibatch_size == cfg.n_envs * cfg.n_steps * cfg.max_vehicles // (
+        cfg.minibatches
+    )
+    scenario = cfg.training_scenario()
+    assert scenario.demand.n_vehicles == round(1540 * cfg.demand_window_s / 3600)
+    assert scenario.demand.duration_s == cfg.demand_window_s
+    assert ppo_config_from_dict(cfg.to_dict()) == cfg
+    import yaml
+
+    assert ppo_config_from_dict(yaml.safe_load(cfg.to_yaml())) == cfg
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"n_env": 4}, r"unknown key 'n_env'"),
+        ({"n_envs": "64"}, r"n_envs: expected an integer, got '64'"),
+        ({"n_envs": 4.0}, r"n_envs: expected an integer"),
+        ({"anneal_lr": 1}, r"anneal_lr: expected true or false"),
+        ({"hidden": 64}, r"hidden: expected a list"),
+        ({"hidden": [64, 0]}, r"hidden\[1\]: 0, expected >= 1"),
+        ({"gamma": 1.5}, r"gamma: 1.5, expected in \(0, 1\]"),
+        ({"lr": -0.1}, r"lr: -0.1, expected > 0"),
+        ({"penetrations": [0.5, 1.2]}, r"penetrations\[1\]: 1.2"),
+        ({"penetrations": []}, r"penetrations: empty"),
+        ({"activation": "gelu"}, r"activation: 'gelu'"),
+        ({"observer": "eyes"}, r"observer: 'eyes'"),
+        ({"minibatches": 3}, r"minibatches: 3 does not divide"),
+        ({"total_env_steps": 10}, r"less than one update"),
+        ({"ent_coef": float("nan")}, r"ent_coef: expected a finite number"),
+    ],
+)
+def test_config_errors_name_the_field(changes: dict, message: str) -> None:
+    d = {**PPOConfig(**TINY).to_dict(), **changes}
+    with pytest.raises(ConfigError, match=message):
+        ppo_config_from_dict(d)
+
+
+def test_config_files(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="neither a PPO config file"):
+        load_ppo_config("atlantis")
+    with pytest.raises(ConfigError, match="does not exist"):
+        load_ppo_config(tmp_path / "missing.yaml")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("- a list\n")
+    with pytest.raises(ConfigError, match="expected a mapping"):
+        load_ppo_config(bad)
+
+
+# --------------------------------------------------------------------------- training
+
+
+@pytest.fixture(scope="module")
+def trainer() -> Trainer:
+    return Trainer(tiny_config())
+
+
+def test_chunks_equal_the_whole_run(trainer: Trainer) -> None:
+    """`train(key)` in one program and `init` + `update_chunk(1)` call by call
+    (as the CLI runs) give bit-identical parameters, states and metrics."""
+    cfg = trainer.config
+    key = jax.random.PRNGKey(cfg.seed)
+    runner, metrics = jax.jit(trainer.train)(key)
+    n = cfg.num_updates
+    assert int(runner.update) == n
+    assert all(v.shape == (n,) for v in metrics.values())
+    assert np.all(np.asarray(metrics["agent_steps"]) > 0)
+    for k in ("policy_loss", "value_loss", "entropy", "approx_kl"):
+        assert np.all(np.isfinite(np.asarray(metrics[k]))), k
+    assert np.asarray(metrics["learning_rate"])[0] == pytest.approx(cfg.lr)
+
+    chunk = trainer.update_chunk(1)
+    stepped = jax.jit(trainer.init)(key)
+    parts = []
+    for _ in range(n):
+        stepped, m = chunk(stepped)
+        parts.append(m)
+    chunked = {k: np.concatenate([np.asarray(p[k]) for p in parts]) for k in metrics}
+    assert tree_equal(chunked, metrics)
+    assert tree_equal(stepped, runner)
+
+
+TWO_DEVICES = """
+import json, sys
+import jax, numpy as np
+from agents.ppo import Trainer
+from jaxround.config import ConfigError
+from tests.conftest import tree_equal
+from tests.test_ppo import tiny_config
+
+assert jax.device_count() == 2, jax.devices()
+try:
+    Trainer(tiny_config(n_envs=3, minibatches=1, total_env_steps=24))
+    sys.exit("n_envs=3 on 2 devices was accepted")
+except ConfigError as err:
+    refused = str(err)
+trainer = Trainer(tiny_config(total_env_steps=4 * 8 * 2))
+keys = jax.random.split(jax.random.PRNGKey(0), 2)
+runner, metrics = jax.jit(jax.vmap(trainer.train))(keys)
+print(json.dumps({
+    "refused": refused,
+    "obs_shape": list(runner.obs.shape),
+    "obs_devices": len(runner.obs.sharding.device_set),
+    "pos_devices": len(runner.env_state.pos.sharding.device_set),
+    "metrics": {k: np.asarray(v).tolist() for k, v in metrics.items()},
+}))
+"""
+
+
+def test_two_seeds_sharded_over_two_devices() -> None:
+    """Two seeds in one vmap with the roundabouts split over two (host) devices."""
+    env = {
+        **os.environ,
+        "XLA_FLAGS": "--xla_force_host_platform_device_count=2",
+        "JAX_DISABLE_MOST_OPTIMIZATIONS": "1",
+    }
+    done = subprocess.run(
+        [sys.executable, "-c", TWO_DEVICES],
+        cwd=ROOT, env=env, capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    out = json.loads(done.stdout.strip().splitlines()[-1])
+    assert "cannot be split evenly over 2 devices" in out["refused"]
+    m = tiny_config().max_vehicles
+    assert out["obs_shape"][:3] == [2, 4, m]
+    assert out["obs_devices"] == 2 and out["pos_devices"] == 2
+    metrics = out["metrics"]
+    assert np.shape(metrics["value_loss"]) == (2, 2)
+    assert np.all(np.isfinite(metrics["value_loss"]))
+    assert metrics["agent_steps"][0] != metrics["agent_steps"][1]  # seeds differ

@@ -1,0 +1,158 @@
+"""`jaxround train` and `jaxround evaluate`: the run folder, determinism, resume.
+
+One tiny training run (the config of `test_ppo.py`, 4 updates, a checkpoint
+every 2) is shared by the tests; the others repeat or resume it and must
+give the very same files.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from agents.config import load_ppo_config
+from agents.training import CSV_COLUMNS, read_csv, train_to_dir
+from jaxround.cli import main
+from tests.conftest import builtin_dict
+from tests.test_ppo import quick_compilation, tiny_config
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _quick_compilation(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    with quick_compilation(tmp_path_factory.getbasetemp() / "xla_cache"):
+        yield
+
+
+@pytest.fixture(scope="module")
+def ppo_yaml(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("cfg") / "tiny.yaml"
+    path.write_text(tiny_config().to_yaml())
+    return path
+
+
+@pytest.fixture(scope="module")
+def first_run(tmp_path_factory: pytest.TempPathFactory, ppo_yaml: Path) -> Path:
+    out = tmp_path_factory.mktemp("runs") / "a"
+    args = ["train", "--config", str(ppo_yaml), "--out", str(out), "--no-progress"]
+    assert main(args) == 0
+    return out
+
+
+def policy_arrays(folder: Path) -> dict[str, np.ndarray]:
+    with np.load(folder / "policy.npz") as data:
+        return {k: data[k] for k in data.files}
+
+
+def assert_same_run(a: Path, b: Path) -> None:
+    assert (a / "metrics.csv").read_bytes() == (b / "metrics.csv").read_bytes()
+    pa, pb = policy_arrays(a), policy_arrays(b)
+    assert pa.keys() == pb.keys()
+    for k in pa:
+        np.testing.assert_array_equal(pa[k], pb[k], err_msg=k)
+
+
+def test_train_writes_the_run(first_run: Path) -> None:
+    cfg = tiny_config()
+    assert load_ppo_config(first_run / "config.yaml") == cfg
+    rows = read_csv(first_run / "metrics.csv")
+    assert [int(r["update"]) for r in rows] == list(range(1, cfg.num_updates + 1))
+    assert tuple(rows[0]) == CSV_COLUMNS
+    assert float(rows[-1]["env_steps"]) == cfg.total_env_steps
+    assert len(read_csv(first_run / "timing.csv")) == cfg.num_updates
+    steps = sorted(int(p.name) for p in (first_run / "checkpoints").iterdir())
+    assert steps == [2, 4]
+    assert (first_run / "learning_curves.png").stat().st_size > 1000
+    meta = json.loads((first_run / "policy.json").read_text())
+    assert meta["hidden"] == list(cfg.hidden)
+    assert meta["obs_size"] > 0
+
+
+def test_same_seed_same_curve(first_run: Path, ppo_yaml: Path, tmp_path: Path) -> None:
+    out = tmp_path / "b"
+    args = ["train", "--config", str(ppo_yaml), "--out", str(out), "--no-progress"]
+    assert main(args) == 0
+    assert_same_run(first_run, out)
+
+
+def test_resume_after_a_kill(
+    first_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A run stopped after update 3 (last checkpoint: 2) and resumed ends as
+    the uninterrupted run: same curve, no duplicate rows, same policy."""
+    cfg = tiny_config()
+    out = tmp_path / "c"
+    out.mkdir()
+    (out / "config.yaml").write_text(cfg.to_yaml())
+    train_to_dir(cfg, out, progress=False, stop_after=3, say=lambda msg: None)
+    assert len(read_csv(out / "metrics.csv")) == 3
+    assert not (out / "policy.npz").exists()
+    assert main(["train", "--resume", str(out), "--no-progress"]) == 0
+    assert_same_run(first_run, out)
+
+    capsys.readouterr()
+    assert main(["train", "--resume", str(out), "--seed", "7"]) == 2
+    assert "another config (seed: 0 -> 7)" in capsys.readouterr().err
+
+
+def test_train_refuses_bad_requests(
+    first_run: Path, ppo_yaml: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    before = (first_run / "metrics.csv").read_bytes()
+    assert main(["train", "--config", str(ppo_yaml), "--out", str(first_run)]) == 2
+    assert "pass --force" in capsys.readouterr().err
+    assert (first_run / "metrics.csv").read_bytes() == before
+    assert main(["train"]) == 2
+    assert "--out DIR" in capsys.readouterr().err
+    assert main(["train", "--resume", str(tmp_path)]) == 2
+    assert "not a run folder" in capsys.readouterr().err
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump({**tiny_config().to_dict(), "gamma": 2.0}))
+    assert main(["train", "--config", str(bad), "--out", str(tmp_path / "x")]) == 2
+    assert "gamma: 2.0" in capsys.readouterr().err
+
+
+def small_scenario(tmp_path: Path) -> Path:
+    d = builtin_dict("milan")
+    d["demand"].update(n_vehicles=12, duration_s=30.0)
+    path = tmp_path / "small.yaml"
+    path.write_text(yaml.safe_dump(d))
+    return path
+
+
+def test_evaluate_json(
+    first_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "eval"
+    scenario = small_scenario(tmp_path)
+    args = [
+        "evaluate", "--policy", str(first_run), "--config", str(scenario),
+        "--penetrations", "0,50,100", "--max-vehicles", "16", "--json",
+        "--out", str(out),
+    ]  # fmt: skip
+    assert main(args) == 0
+    report = json.loads(capsys.readouterr().out)
+    results = report["results"]
+    assert set(results) == {"policy", "uncontrolled"}
+    for driver in results.values():
+        assert set(driver) == {"0", "50", "100"}
+        assert driver["50"]["av"]["n_vehicles"] == 6
+        assert driver["100"]["hv"]["n_vehicles"] == 0
+        assert "collisions" in driver["50"]
+    # without AVs the policy has nothing to drive
+    assert results["policy"]["0"] == results["uncontrolled"]["0"]
+    assert (out / "evaluation.json").exists()
+    assert (out / "jax_policy_table3.md").exists()
+
+
+def test_evaluate_refuses(
+    first_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["evaluate", "--policy", str(first_run), "--sim", "sumo"]) == 2
+    assert "not yet" in capsys.readouterr().err
+    assert main(["evaluate", "--policy", str(tmp_path / "none")]) == 2
+    assert "does not exist" in capsys.readouterr().err
