@@ -1,16 +1,24 @@
-"""Run a scenario in SUMO over several seeds and penetrations and summarise it."""
+"""Run a scenario in SUMO over several seeds and penetrations and summarise it.
+
+`sumo_sweep` leaves the AVs to their SUMO vType; `sumo_policy_sweep` drives
+them with an exported policy (`sumo_export.controller`).
+"""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
+import numpy as np
 from tqdm.auto import tqdm
 
 from jaxround.config import ScenarioConfig
 from jaxround.metrics import class_metrics, mean_over_runs
 from jaxround.schedule import make_schedule
-from sumo_export.runner import SumoRun, run_many
+from sumo_export.controller import PHASES, PolicyControllerFactory, policy_observer
+from sumo_export.runner import ControllerFactory, SumoRun, run_many
+from sumo_export.traffic import DEFAULT_SLOTS
 
 SAFETY_KEYS = ("collisions", "emergency_brakings", "teleports")
 
@@ -28,12 +36,56 @@ def summarise_runs(cfg: ScenarioConfig, runs: Sequence[SumoRun]) -> dict[str, An
         entry = class_metrics(run.records, cfg.demand.duration_s)
         entry.update({k: getattr(run, k) for k in SAFETY_KEYS})
         entry["sim_end_s"] = run.sim_end_s
+        entry["wall_s"] = run.wall_s
+        if run.controller_report is not None:
+            entry["controller"] = controller_summary([run.controller_report])
         per_seed.append(entry)
     classes = mean_over_runs([{k: e[k] for k in ("all", "hv", "av")} for e in per_seed])
     mean = dict(classes)
     for key in SAFETY_KEYS:
         mean[key] = int(sum(e[key] for e in per_seed))
+    reports = [r.controller_report for r in runs if r.controller_report is not None]
+    if reports:
+        mean["controller"] = controller_summary(reports)
     return {"per_seed": per_seed, "mean": mean}
+
+
+def controller_summary(reports: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """The controller's time per SUMO step over the steps of several runs.
+
+    Args:
+        reports: `PolicyController.report()` of each run.
+
+    Returns:
+        ``{"steps": n, "median_ms": x, "p99_ms": x, "mean_ms": x,
+        "phases_median_ms": {phase: x}, "phases_p99_ms": {phase: x},
+        "overflow_vehicle_steps": n,
+        "commands": n, "lane_changes": n}``; times are of the whole
+        controller call (read, observe, policy, command) and pooled over the
+        runs' steps; the counts are totals.
+    """
+    total = np.concatenate([np.asarray(r["step_ms"]["total"]) for r in reports])
+    empty = total.size == 0
+    phases = {
+        k: np.concatenate([np.asarray(r["step_ms"][k]) for r in reports])
+        for k in PHASES
+    }
+    return {
+        "steps": int(total.size),
+        "median_ms": None if empty else float(np.median(total)),
+        "p99_ms": None if empty else float(np.percentile(total, 99)),
+        "mean_ms": None if empty else float(total.mean()),
+        "phases_median_ms": {
+            k: None if empty else float(np.median(v)) for k, v in phases.items()
+        },
+        "phases_p99_ms": {
+            k: None if empty else float(np.percentile(v, 99)) for k, v in phases.items()
+        },
+        **{
+            key: int(sum(r[key] for r in reports))
+            for key in ("overflow_vehicle_steps", "commands", "lane_changes")
+        },
+    }
 
 
 def sumo_sweep(
@@ -42,8 +94,18 @@ def sumo_sweep(
     seeds: Sequence[int],
     workers: int | None = None,
     show_progress: bool = True,
+    controller: ControllerFactory | None = None,
 ) -> dict[float, dict[str, Any]]:
     """Run every (penetration, seed) schedule in SUMO, several processes at once.
+
+    Args:
+        cfg: the scenario.
+        penetrations: AV shares.
+        seeds: schedule seeds (`jaxround.schedule.make_schedule`).
+        workers: SUMO processes side by side; defaults to the CPUs.
+        show_progress: a progress bar on stderr.
+        controller: drives the AVs of every run (built in each worker, see
+            `sumo_export.runner.run_many`); None leaves them to their vType.
 
     Returns:
         ``{penetration: summarise_runs(...)}`` in the order given.
@@ -52,10 +114,99 @@ def sumo_sweep(
     base = {s: make_schedule(cfg, seed=s, penetration=0.0) for s in seeds}
     schedules = [base[s].with_penetration(p) for p, s in jobs]
     bar = tqdm(total=len(jobs), desc="SUMO runs", unit="run", disable=not show_progress)
-    runs = run_many(cfg, schedules, workers=workers, progress=lambda _: bar.update())
+    runs = run_many(
+        cfg, schedules, workers=workers, progress=lambda _: bar.update(),
+        controller=controller,
+    )  # fmt: skip
     bar.close()
     out: dict[float, dict[str, Any]] = {}
     for p in penetrations:
         mine = [r for (pj, _), r in zip(jobs, runs, strict=True) if pj == p]
         out[p] = summarise_runs(cfg, mine)
     return out
+
+
+def sumo_policy_sweep(
+    cfg: ScenarioConfig,
+    policy_path: str | Path,
+    penetrations: Sequence[float],
+    seeds: Sequence[int],
+    workers: int | None = None,
+    show_progress: bool = True,
+    max_slots: int = DEFAULT_SLOTS,
+) -> dict[float, dict[str, Any]]:
+    """`sumo_sweep` with the AVs driven by an exported policy.
+
+    Every run builds a `sumo_export.controller.PolicyController` in its
+    worker process; collisions are checked on the junctions as in every run.
+
+    Args:
+        cfg: the scenario.
+        policy_path: the exported policy (``.npz``, ``.json``, stem or folder).
+        penetrations: AV shares.
+        seeds: schedule seeds.
+        workers: SUMO processes side by side; defaults to the CPUs.
+        show_progress: a progress bar on stderr.
+        max_slots: the controller's vehicle slots.
+
+    Returns:
+        ``{penetration: summarise_runs(...)}``: "mean" holds the class
+        metrics (`jaxround.metrics.class_metrics`, mean over seeds), the
+        safety counters (totals) and "controller" (`controller_summary`).
+
+    Raises:
+        FileNotFoundError, ValueError: as `policy_observer`, or the policy was
+            trained on other roads or drivers; before any run.
+    """
+    from agents.export import check_scenario, load_policy
+
+    policy_observer(policy_path)  # fail here rather than in every worker
+    check_scenario(load_policy(policy_path)[1], cfg)
+    factory = PolicyControllerFactory(str(policy_path), max_slots)
+    return sumo_sweep(
+        cfg, penetrations, seeds, workers=workers, show_progress=show_progress,
+        controller=factory,
+    )  # fmt: skip
+
+
+def controller_overhead(
+    cfg: ScenarioConfig,
+    policy_path: str | Path,
+    penetration: float = 1.0,
+    seed: int = 0,
+    max_slots: int = DEFAULT_SLOTS,
+) -> dict[str, Any]:
+    """What the controller costs: one schedule run without it, then with it.
+
+    The two runs go one after the other, each in a fresh worker process.
+    With the policy driving, the traffic (and so the number of steps) can
+    differ from the run without it.
+
+    Returns:
+        ``{"penetration", "seed", "without": R, "with": R, "controller":
+        controller_summary(...)}``, R = ``{"wall_s", "steps", "sim_end_s",
+        "n_arrived", "collisions"}`` (wall_s: the simulation loop, the
+        controller included).
+    """
+    policy_observer(policy_path)
+    schedule = make_schedule(cfg, seed=seed, penetration=penetration)
+    factory = PolicyControllerFactory(str(policy_path), max_slots)
+    (plain,) = run_many(cfg, [schedule], workers=1)
+    (driven,) = run_many(cfg, [schedule], workers=1, controller=factory)
+
+    def brief(run: SumoRun) -> dict[str, Any]:
+        return {
+            "wall_s": run.wall_s,
+            "steps": round(run.sim_end_s / cfg.simulation.dt_s),
+            "sim_end_s": run.sim_end_s,
+            "n_arrived": int(run.records.arrived.sum()),
+            "collisions": run.collisions,
+        }
+
+    return {
+        "penetration": penetration,
+        "seed": seed,
+        "without": brief(plain),
+        "with": brief(driven),
+        "controller": controller_summary([driven.controller_report]),
+    }

@@ -1,19 +1,24 @@
 """Run schedules in SUMO through libsumo, one process per simulation.
 
 libsumo holds one simulation per process, so each run happens in a worker
-process; `run_many` runs several side by side.
+process; `run_many` runs several side by side. A controller, called after
+every step, can drive vehicles (`sumo_export.controller.PolicyController`);
+`run_many` builds one per run inside its worker from a picklable factory.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import multiprocessing
 import os
 import tempfile
+import time
 import xml.etree.ElementTree as ET
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -26,6 +31,13 @@ from sumo_export.scenario import vehicle_id, write_scenario
 #: Extra simulated time after the demand horizon for the last vehicles to leave.
 DRAIN_S = 1800.0
 
+#: Called as ``controller(libsumo, time_s)`` after every SUMO step.
+Controller = Callable[[Any, float], None]
+#: Builds a run's controller inside its worker process: ``factory(cfg, schedule)``.
+#: It must pickle (e.g. a frozen dataclass); a controller with a ``report()``
+#: method has its report kept in `SumoRun.controller_report`.
+ControllerFactory = Callable[[ScenarioConfig, Schedule], Controller]
+
 
 @dataclass(frozen=True)
 class SumoRun:
@@ -36,13 +48,15 @@ class SumoRun:
     emergency_brakings: int
     teleports: int
     sim_end_s: float
+    wall_s: float = 0.0  # seconds the simulation loop took, controller included
+    controller_report: dict[str, Any] | None = None  # the controller's report()
 
 
 def run_schedule(
     cfg: ScenarioConfig,
     schedule: Schedule,
     workdir: str | Path | None = None,
-    controller: Callable[[object, float], None] | None = None,
+    controller: Controller | None = None,
 ) -> SumoRun:
     """Run one schedule in SUMO in *this* process (libsumo: one run per process).
 
@@ -67,7 +81,9 @@ def run_schedule(
         args = sumo_arguments(files.sumocfg, tripinfo, stats)
         libsumo.start(args)
         try:
+            started = time.perf_counter()
             queues = _simulate(libsumo, cfg, schedule, controller)
+            wall = time.perf_counter() - started
             sim_end = libsumo.simulation.getTime()
         finally:
             libsumo.close()
@@ -79,6 +95,7 @@ def run_schedule(
         emergency_brakings=emergency,
         teleports=teleports,
         sim_end_s=float(sim_end),
+        wall_s=wall,
     )
 
 
@@ -101,7 +118,7 @@ def _simulate(
     libsumo: object,
     cfg: ScenarioConfig,
     schedule: Schedule,
-    controller: Callable[[object, float], None] | None,
+    controller: Controller | None,
 ) -> np.ndarray:
     """Step until every vehicle has left; return queue lengths, shape (T, n_legs)."""
     n_legs = cfg.n_legs
@@ -165,9 +182,18 @@ def _read_statistics(path: Path) -> tuple[int, int, int]:
     return collisions, emergency, n_teleports
 
 
-def _run_job(job: tuple[ScenarioConfig, Schedule]) -> SumoRun:
-    cfg, schedule = job
-    return run_schedule(cfg, schedule)
+def _run_job(
+    job: tuple[ScenarioConfig, Schedule, ControllerFactory | None],
+) -> SumoRun:
+    cfg, schedule, factory = job
+    if factory is None:
+        return run_schedule(cfg, schedule)
+    controller = factory(cfg, schedule)
+    run = run_schedule(cfg, schedule, controller=controller)
+    report = getattr(controller, "report", None)
+    if report is None:
+        return run
+    return dataclasses.replace(run, controller_report=report())
 
 
 def run_many(
@@ -175,6 +201,7 @@ def run_many(
     schedules: Sequence[Schedule],
     workers: int | None = None,
     progress: Callable[[SumoRun], None] | None = None,
+    controller: ControllerFactory | None = None,
 ) -> list[SumoRun]:
     """Run several schedules, each in its own SUMO process, in parallel.
 
@@ -183,6 +210,9 @@ def run_many(
         schedules: one schedule per run.
         workers: processes side by side; defaults to the number of CPUs.
         progress: called once per finished run (in completion order).
+        controller: builds each run's controller in its worker process
+            (e.g. `sumo_export.controller.PolicyControllerFactory`); None
+            leaves every vehicle to SUMO.
 
     Returns:
         One `SumoRun` per schedule, in the order given.
@@ -190,7 +220,7 @@ def run_many(
     workers = workers or min(len(schedules), os.cpu_count() or 1)
     ctx = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=max(1, workers), mp_context=ctx) as pool:
-        futures = [pool.submit(_run_job, (cfg, s)) for s in schedules]
+        futures = [pool.submit(_run_job, (cfg, s, controller)) for s in schedules]
         results = []
         for fut in futures:
             run = fut.result()

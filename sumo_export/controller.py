@@ -1,0 +1,266 @@
+"""Drive SUMO's AVs with a policy, seeing what the JAX environment's AVs see.
+
+    controller = PolicyController.from_policy("runs/ppo/policy", cfg, schedule)
+    run = run_schedule(cfg, schedule, controller=controller)
+    controller.report()  # per-step timing, slot overflow, commands
+
+After every SUMO step the controller
+
+1. reads every vehicle in the network into slots and computes their
+   observation rows with the JAX environment's own jitted observer, the one
+   the policy was trained with (`sumo_export.traffic.SumoObserver`);
+2. runs the policy in NumPy on the occupied slots;
+3. commands each AV ``setSpeed(v + a * dt)``, with ``a`` clipped to the AV's
+   [-decel, accel] and the speed kept at or above ``max(v - decel * dt, 0)``.
+   SUMO's default speed mode 31 stays on: SUMO caps the command at the AV's
+   IDM speed, exactly as `jaxround.env.av_speed` does in JAX.
+   (``setAcceleration(a, dt)`` gave the same speeds to the last digit;
+   ``setSpeed`` says what `av_speed` computes. A command holds until
+   released with ``setSpeed(-1)``.)
+
+The lane-change decision acts only where the AV's road has more than one
+lane (``changeLane`` to a neighbouring lane); every road of the roundabouts
+jaxround compiles has one lane, so there it is a no-op.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jaxround.config import ScenarioConfig
+from jaxround.observe import OBSERVATION_SIZES
+from jaxround.schedule import Schedule
+from sumo_export.traffic import (
+    DEFAULT_SLOTS,
+    SumoObserver,
+    SumoTraffic,
+    synchronous_cpu_dispatch,
+)
+
+#: ``act(obs (n, D), mask (n,) bool) -> (accel (n,), change (n,))``.
+PolicyFn = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+#: Phases of a controller step whose time is recorded.
+PHASES = ("read", "observe", "policy", "command")
+
+
+class PolicyController:
+    """The ``controller(libsumo, time_s)`` of `sumo_export.runner.run_schedule`.
+
+    Args:
+        cfg: the scenario.
+        schedule: the schedule SUMO runs (routes and classes of its vehicles).
+        act: the policy, ``act(obs (n, D), mask (n,)) -> (accel (n,), change (n,))``.
+        observer: the observer the policy reads (`jaxround.observe`).
+        max_slots: vehicle slots M; vehicles beyond them drive uncontrolled
+            (their IDM) and are counted in ``report()["overflow_vehicle_steps"]``.
+        strict: raise OverflowError instead of counting when the slots overflow.
+
+    Attributes:
+        sumo: reads SUMO's vehicles and computes their observation rows.
+        record_observations: compute the observation at every step, AVs in
+            the network or not (for checks; otherwise only when there are).
+        last_obs: float32 (S, D) the last step's observation rows (None when
+            not computed).
+        last_traffic: the last step's `SumoTraffic`.
+    """
+
+    def __init__(
+        self,
+        cfg: ScenarioConfig,
+        schedule: Schedule,
+        act: PolicyFn,
+        observer: str,
+        max_slots: int = DEFAULT_SLOTS,
+        strict: bool = False,
+    ) -> None:
+        self.sumo = SumoObserver(cfg, schedule, observer, max_slots, strict)
+        self.act = act
+        self.dt = cfg.simulation.dt_s
+        av = cfg.drivers.av
+        self.av_accel, self.av_decel = av.accel, av.decel
+        self._lanes_of_edge: dict[str, int] = {}
+        self._commanded: set[str] = set()
+        self._times: dict[str, list[int]] = {k: [] for k in PHASES}
+        self.commands = 0
+        self.lane_changes = 0
+        self.record_observations = False
+        self.last_obs: np.ndarray | None = None
+        self.last_traffic: SumoTraffic | None = None
+
+    @classmethod
+    def from_policy(
+        cls,
+        policy_path: str | Path,
+        cfg: ScenarioConfig,
+        schedule: Schedule,
+        max_slots: int = DEFAULT_SLOTS,
+        strict: bool = False,
+    ) -> PolicyController:
+        """A controller for an exported policy (`agents.export`); raises as
+        `policy_observer`."""
+        from agents.export import load_policy_numpy
+
+        observer = policy_observer(policy_path)
+        act = load_policy_numpy(policy_path)
+        return cls(cfg, schedule, act, observer, max_slots, strict)
+
+    # ------------------------------------------------------------------ a step
+
+    def __call__(self, libsumo: Any, time_s: float) -> None:
+        """Observe, decide and command every AV after SUMO's step to `time_s`."""
+        del time_s
+        t0 = time.perf_counter_ns()
+        traffic = self.sumo.read(libsumo)
+        t1 = time.perf_counter_ns()
+        obs = None
+        if traffic.n_av or self.record_observations:
+            obs = self.sumo.observe(traffic)
+        t2 = time.perf_counter_ns()
+        if traffic.n_av:
+            accel, change = self.decide(obs, traffic)
+            t3 = time.perf_counter_ns()
+            self.command(libsumo, traffic, accel, change)
+        else:  # nothing to decide; release AVs that lost their slot
+            t3 = time.perf_counter_ns()
+            self.command(libsumo, traffic, np.zeros(0), np.zeros(0))
+        t4 = time.perf_counter_ns()
+        for name, dt_ns in zip(PHASES, (t1 - t0, t2 - t1, t3 - t2, t4 - t3)):
+            self._times[name].append(dt_ns)
+        self.last_obs, self.last_traffic = obs, traffic
+
+    def decide(
+        self, obs: np.ndarray, traffic: SumoTraffic
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The policy on the occupied slots: (accel float (n,), change (n,))."""
+        n = traffic.n
+        accel, change = self.act(obs[:n], np.ones(n, bool))
+        return np.asarray(accel), np.asarray(change)
+
+    def command(
+        self,
+        libsumo: Any,
+        traffic: SumoTraffic,
+        accel: np.ndarray,
+        change: np.ndarray,
+    ) -> None:
+        """Command the AVs' speeds (and lane changes where there is a lane).
+
+        Args:
+            libsumo: the running simulation.
+            traffic: the vehicles as `SumoObserver.read` gave them.
+            accel: float (n,) acceleration per occupied slot, m/s^2 (empty:
+                no commands, only releases).
+            change: (n,) lane-change decision (true or > 0.5: change).
+        """
+        veh = libsumo.vehicle
+        n = len(accel)
+        v_cmd = commanded_speed(
+            traffic.speed[:n], np.asarray(accel, np.float64), self.av_accel,
+            self.av_decel, self.dt,
+        ).tolist()  # fmt: skip
+        wants = (np.asarray(change, np.float64) > 0.5).tolist()
+        is_av = (traffic.column("is_av")[:n] > 0.5).tolist()
+        commanded = set()
+        for vid, av, v, lane_change in zip(traffic.ids, is_av, v_cmd, wants):
+            if av:
+                veh.setSpeed(vid, v)
+                commanded.add(vid)
+                if lane_change:
+                    self._change_lane(libsumo, vid)
+        # a command holds until released: an AV that lost its slot drives its IDM
+        for vid in traffic.unslotted:
+            if vid in self._commanded:
+                veh.setSpeed(vid, -1.0)
+        self._commanded = commanded
+        self.commands += len(commanded)
+
+    def _change_lane(self, libsumo: Any, vid: str) -> None:
+        """Move to a neighbouring lane (left if there is one) on a multi-lane road."""
+        veh = libsumo.vehicle
+        edge = veh.getRoadID(vid)
+        if edge not in self._lanes_of_edge:
+            self._lanes_of_edge[edge] = libsumo.edge.getLaneNumber(edge)
+        n_lanes = self._lanes_of_edge[edge]
+        if n_lanes < 2:
+            return
+        k = veh.getLaneIndex(vid)
+        veh.changeLane(vid, k + 1 if k + 1 < n_lanes else k - 1, self.dt)
+        self.lane_changes += 1
+
+    # ------------------------------------------------------------------ report
+
+    def step_times_ms(self) -> dict[str, np.ndarray]:
+        """Per controller step, ms: float (T,) per phase of `PHASES` and "total"."""
+        out = {k: np.asarray(v, np.float64) / 1e6 for k, v in self._times.items()}
+        out["total"] = sum((out[k] for k in PHASES), np.zeros(len(self._times["read"])))
+        return out
+
+    def report(self) -> dict[str, Any]:
+        """Plain data for `SumoRun.controller_report`: per-step times (lists,
+        ms), slots, slot overflow, AV commands and lane changes."""
+        return {
+            "step_ms": {k: v.tolist() for k, v in self.step_times_ms().items()},
+            "max_slots": self.sumo.max_slots,
+            "overflow_vehicle_steps": self.sumo.overflow_vehicle_steps,
+            "commands": self.commands,
+            "lane_changes": self.lane_changes,
+        }
+
+
+def policy_observer(policy_path: str | Path) -> str:
+    """The observer an exported policy reads, checked against its input size.
+
+    Raises:
+        FileNotFoundError: a file of the policy is missing.
+        ValueError: the files are damaged, or the observer gives another
+            number of values than the policy reads.
+    """
+    from agents.export import load_policy
+
+    _, layout = load_policy(policy_path)
+    if OBSERVATION_SIZES.get(layout.observer) != layout.obs_size:
+        raise ValueError(
+            f"{policy_path}: the policy reads {layout.obs_size} numbers of the "
+            f"{layout.observer!r} observer, which gives "
+            f"{OBSERVATION_SIZES.get(layout.observer)}"
+        )
+    return layout.observer
+
+
+def commanded_speed(
+    speed: np.ndarray, accel: np.ndarray, max_accel: float, decel: float, dt: float
+) -> np.ndarray:
+    """The speed an AV is commanded for the next step, float (n,).
+
+    ``v + clip(a, -decel, max_accel) * dt``, at least ``max(v - decel * dt, 0)``
+    (`jaxround.env.av_speed` before SUMO's cap at the IDM speed).
+    """
+    a = np.clip(np.nan_to_num(accel), -decel, max_accel)
+    return np.maximum(speed + a * dt, np.maximum(speed - decel * dt, 0.0))
+
+
+@dataclass(frozen=True)
+class PolicyControllerFactory:
+    """Builds a `PolicyController` inside a SUMO worker process (picklable);
+    a `sumo_export.runner.ControllerFactory`. It switches the worker's JAX to
+    `synchronous_cpu_dispatch` first.
+
+    Attributes:
+        policy_path: the exported policy (``.npz``, ``.json``, stem or folder).
+        max_slots: vehicle slots M.
+    """
+
+    policy_path: str
+    max_slots: int = DEFAULT_SLOTS
+
+    def __call__(self, cfg: ScenarioConfig, schedule: Schedule) -> PolicyController:
+        synchronous_cpu_dispatch()
+        return PolicyController.from_policy(
+            self.policy_path, cfg, schedule, self.max_slots
+        )
