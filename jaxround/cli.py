@@ -9,11 +9,11 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from collections.abc import Sequence
 from pathlib import Path
 
 from jaxround.config import ConfigError, ScenarioConfig, load_config
+from jaxround.pipeline import QUICK_TRAIN_STEPS
 from jaxround.report import percent_label
 
 
@@ -167,65 +167,37 @@ def cmd_sumo(args: argparse.Namespace) -> None:
 
 
 def cmd_run(args: argparse.Namespace) -> None:
-    from jaxround.metrics import class_metrics, mean_over_runs
-    from jaxround.parity import run_jax
-    from jaxround.plots import plot_sweep
-    from jaxround.report import write_json, write_tables
-    from jaxround.schedule import make_schedule
-    from sumo_export.evaluate import sumo_sweep
-    from sumo_export.scenario import write_scenario
+    from agents.config import load_ppo_config
+    from jaxround.pipeline import TRAIN_DIR, headline, main_job
 
     cfg = load_config(args.config)
-    out = fresh_output_dir(args.out, args.force, ["results.json"])
+    train_cfg = load_ppo_config(args.train_config)
+    if args.quick:
+        train_cfg = train_cfg.replace(
+            total_env_steps=min(train_cfg.total_env_steps, QUICK_TRAIN_STEPS)
+        )
+    if args.total_steps is not None:
+        train_cfg = train_cfg.replace(total_env_steps=args.total_steps)
+    out = fresh_output_dir(
+        args.out, args.force, ["results.json", "evaluation.json", TRAIN_DIR]
+    )
     seeds = seeds_of(cfg, 1 if args.quick else args.seeds)
     penetrations = [0.0, 0.5, 1.0] if args.quick else [i / 10 for i in range(11)]
-    started = time.time()
-    write_scenario(cfg, make_schedule(cfg), out / "scenario")
     say = (
         (lambda msg: None)
         if args.no_progress
         else (lambda msg: print(msg, file=sys.stderr))
     )
-    say(f"[1/3] scenario files in {out / 'scenario'}")
-    say(
-        f"[2/3] SUMO: {len(penetrations)} penetrations x {len(seeds)} seeds "
-        "(AVs drive the plain AV vType: no policy yet)"
-    )
-    sumo = sumo_sweep(
-        cfg, penetrations, seeds, workers=args.workers,
-        show_progress=not args.no_progress,
+    result = main_job(
+        cfg, out, seeds, penetrations, train_cfg, workers=args.workers,
+        progress=not args.no_progress, say=say,
     )  # fmt: skip
-    means = {p: r["mean"] for p, r in sumo.items()}
-    say(f"[3/3] JAX: the all-human baseline on the same {len(seeds)} schedule(s)")
-    horizon = cfg.demand.duration_s
-    jax_runs = run_jax(cfg, seeds, penetration=0.0)
-    jax_means = {
-        0.0: mean_over_runs([class_metrics(r["records"], horizon) for r in jax_runs])
-    }
-    tables = write_tables(means, out, "sumo")
-    write_tables(jax_means, out, "jax")
-    plot_sweep(
-        {"sumo": means, "jax": jax_means},
-        out / "sweep.png",
-        f"{cfg.name}: {len(seeds)} seed(s), AVs without policy",
-    )
-    results = {
-        "scenario": cfg.name,
-        "config_fingerprint": cfg.fingerprint(),
-        "seeds": seeds,
-        "policy": None,
-        "sumo": {percent_label(p): m for p, m in means.items()},
-        "jax": {percent_label(p): m for p, m in jax_means.items()},
-        "wall_time_s": round(time.time() - started, 1),
-    }
-    write_json(results, out / "results.json")
-    print(tables)
-    j0, s0 = jax_means[0.0]["hv"], means[0.0]["hv"]
+    print(result["tables"])
+    print(headline(result))
     print(
-        f"all-human baseline, mean crossing time: SUMO "
-        f"{s0['mean_crossing_time_s']:.2f} s, JAX {j0['mean_crossing_time_s']:.2f} s"
+        f"wrote {out / 'results.json'}, the tables and figures in {out}, the "
+        f"training run in {out / TRAIN_DIR} ({result['wall_time_s']:.0f} s in all)"
     )
-    print(f"wrote {out / 'results.json'}, tables and {out / 'sweep.png'}")
 
 
 def cmd_parity(args: argparse.Namespace) -> None:
@@ -234,7 +206,7 @@ def cmd_parity(args: argparse.Namespace) -> None:
     cfg = load_config(args.config)
     report = parity_report(
         cfg, seeds_of(cfg, args.seeds), workers=args.workers,
-        show_progress=not args.no_progress,
+        show_progress=not args.no_progress, penetration=args.penetration,
     )  # fmt: skip
     if args.json:
         print_json(report)
@@ -245,7 +217,12 @@ def cmd_parity(args: argparse.Namespace) -> None:
         ("fuel (g/veh)", "fuel_g_per_veh"),
         ("arrived", "n_arrived"),
     ]
-    print(f"{cfg.name}, HV only, seeds {report['seeds']}\n")
+    who = (
+        "HV only"
+        if args.penetration == 0
+        else f"{percent_label(args.penetration)}% uncontrolled AVs"
+    )
+    print(f"{cfg.name}, {who}, seeds {report['seeds']}\n")
     print("| metric | JAX | SUMO | rel. error |\n|---|---|---|---|")
     for label, key in rows:
         j, s_ = report["jax"]["all"][key], report["sumo"]["all"][key]
@@ -268,6 +245,191 @@ def cmd_bench(args: argparse.Namespace) -> None:
         print_json(result)
     else:
         print(format_benchmark(result))
+
+
+def cmd_train(args: argparse.Namespace) -> None:
+    from agents.config import load_ppo_config
+    from agents.training import (
+        RUN_FILES,
+        clear_run,
+        enable_compilation_cache,
+        train_to_dir,
+    )
+
+    overrides: dict[str, int] = {}
+    if args.seed is not None:
+        overrides["seed"] = args.seed
+    if args.total_steps is not None:
+        overrides["total_env_steps"] = args.total_steps
+    if args.resume is not None:
+        out = args.resume
+        if args.out is not None and args.out.resolve() != out.resolve():
+            raise UsageError(
+                "--out and --resume name different folders; --resume DIR alone "
+                "continues the run in DIR"
+            )
+        saved_file = out / "config.yaml"
+        if not saved_file.is_file():
+            raise UsageError(f"--resume {out}: no config.yaml there, not a run folder")
+        cfg = load_ppo_config(saved_file)
+        wanted = cfg if args.config is None else load_ppo_config(args.config)
+        wanted = wanted.replace(**overrides) if overrides else wanted
+        saved, asked = cfg.to_dict(), wanted.to_dict()
+        differ = [
+            f"{k}: {saved[k]} -> {asked[k]}" for k in saved if saved[k] != asked[k]
+        ]
+        if differ:
+            raise UsageError(
+                f"--resume {out}: the run was started with another config "
+                f"({'; '.join(differ)}); start a new run with --out"
+            )
+    else:
+        if args.out is None:
+            raise UsageError("give --out DIR for a new run, or --resume DIR")
+        cfg = load_ppo_config(args.config)
+        cfg = cfg.replace(**overrides) if overrides else cfg
+        out = fresh_output_dir(args.out, args.force, RUN_FILES)
+        clear_run(out)
+        (out / "config.yaml").write_text(cfg.to_yaml())
+    enable_compilation_cache()
+    say = (
+        (lambda msg: None)
+        if args.no_progress
+        else (lambda msg: print(msg, file=sys.stderr))
+    )
+    say(
+        f"{cfg.num_updates} updates of {cfg.n_envs} x {cfg.n_steps} env steps "
+        f"({cfg.scenario}, {cfg.demand_window_s:g} s of demand), into {out}"
+    )
+    result = train_to_dir(
+        cfg, out, resume=args.resume is not None, progress=not args.no_progress,
+        say=say,
+    )  # fmt: skip
+    rate = result["env_steps_per_s"]
+    last = result["last"]
+    print(
+        f"{result['updates']} updates"
+        + (f", {rate:,.0f} env-steps/s" if rate else "")
+        + (
+            f", last return {last['episode_return']:.3f}, AV crossing time "
+            f"{last['av_crossing_time_s']:.2f} s"
+            if last
+            else ""
+        )
+    )
+    print(f"wrote {out / 'metrics.csv'}, {out / 'learning_curves.png'}")
+    if result["policy"]:
+        print(f"policy: {result['policy']} (+ .json)")
+
+
+def cmd_evaluate(args: argparse.Namespace) -> None:
+    from agents.evaluation import SUMMARY_COLUMNS, evaluate_policy, summary_rows
+    from agents.export import load_policy
+    from agents.training import enable_compilation_cache
+    from jaxround.report import markdown_table, write_json, write_tables
+
+    try:
+        _, layout = load_policy(args.policy)
+    except (OSError, ValueError) as err:
+        raise UsageError(f"--policy {args.policy}: {err}") from None
+    cfg = load_config(args.config or layout.scenario or None)
+    if args.sim == "sumo" and args.out is None:
+        raise UsageError("--sim sumo writes tables and a figure: give --out DIR")
+    out = (
+        None
+        if args.out is None
+        else fresh_output_dir(args.out, args.force, ["evaluation.json"])
+    )
+    seeds = seeds_of(cfg, args.seeds)
+    enable_compilation_cache()
+    if args.sim == "sumo":
+        evaluate_in_sumo(args, cfg, seeds, out)
+        return
+    try:
+        summary = evaluate_policy(
+            args.policy, cfg, args.penetrations, seeds, max_vehicles=args.max_vehicles
+        )
+    except ValueError as err:
+        raise UsageError(f"--policy {args.policy}: {err}") from None
+    results = summary["results"]
+    by_label = {
+        driver: {percent_label(p): m for p, m in per_p.items()}
+        for driver, per_p in results.items()
+    }
+    report = {**summary, "results": by_label}
+    if out is not None:
+        write_json(report, out / "evaluation.json")
+        write_tables(results["policy"], out, "jax_policy")
+        write_tables(results["uncontrolled"], out, "jax_uncontrolled")
+    if args.json:
+        print_json(report)
+        return
+    print(
+        f"{cfg.name}, seeds {seeds}, JAX; AVs driven by the policy and, as the "
+        "baseline, uncontrolled (their IDM vType)\n"
+    )
+    print(markdown_table(SUMMARY_COLUMNS, summary_rows(results)))
+    if out is not None:
+        print(f"wrote {out / 'evaluation.json'} and tables")
+
+
+def evaluate_in_sumo(
+    args: argparse.Namespace, cfg: ScenarioConfig, seeds: list[int], out: Path
+) -> None:
+    """`jaxround evaluate --sim sumo`: SUMO, with the JAX figures beside."""
+    from jaxround.pipeline import evaluate_everywhere, headline
+
+    say = (lambda msg: None) if args.json else (lambda m: print(m, file=sys.stderr))
+    try:
+        result = evaluate_everywhere(
+            cfg, args.policy, args.penetrations, seeds, out, workers=args.workers,
+            progress=not args.json, say=say,
+        )  # fmt: skip
+    except (OSError, ValueError) as err:
+        raise UsageError(f"--policy {args.policy}: {err}") from None
+    if args.json:
+        print_json({k: v for k, v in result.items() if k != "tables"})
+        return
+    print(result["tables"])
+    print(headline(result))
+    print(f"wrote {out / 'evaluation.json'}, tables and sumo_policy.png in {out}")
+
+
+def cmd_export(args: argparse.Namespace) -> None:
+    from agents.export import load_policy, policy_paths
+
+    src_npz, src_json = policy_paths(args.run_dir)
+    if not src_npz.is_file():
+        raise UsageError(
+            f"{args.run_dir}: no exported policy there (a finished `jaxround train` "
+            "run writes policy.npz; resume an unfinished one with --resume)"
+        )
+    try:
+        load_policy(src_npz)  # refuse a damaged file before copying it
+    except (OSError, ValueError) as err:
+        raise UsageError(str(err)) from None
+    dst_npz, dst_json = policy_paths(args.out)
+    for dst in (dst_npz, dst_json):
+        if dst.exists() and not args.force:
+            raise UsageError(f"--out {dst}: exists; pass --force to overwrite")
+    dst_npz.parent.mkdir(parents=True, exist_ok=True)
+    dst_npz.write_bytes(src_npz.read_bytes())
+    dst_json.write_text(src_json.read_text())
+    print(f"wrote {dst_npz} and {dst_json}")
+
+
+def cmd_render(args: argparse.Namespace) -> None:
+    from jaxround.render import render_rollout
+
+    try:
+        path = render_rollout(
+            args.out, scenario=args.config or "milan", seconds=args.seconds,
+            every=args.every, penetration=args.penetration, seed=args.seed,
+            fps=args.fps,
+        )  # fmt: skip
+    except ValueError as err:
+        raise UsageError(str(err)) from None
+    print(f"wrote {path}")
 
 
 # ------------------------------------------------------------------ parser
@@ -312,9 +474,13 @@ def build_parser() -> argparse.ArgumentParser:
     sumo_run_options(p)
     p.set_defaults(func=cmd_sumo)
 
-    p = sub.add_parser("parity", help="JAX against SUMO on the same HV-only schedules")
+    p = sub.add_parser("parity", help="JAX against SUMO on the same schedules")
     common(p)
     p.add_argument("--seeds", type=positive_int, default=3, help="number of seeds")
+    p.add_argument(
+        "--penetration", type=percent, default=0.0,
+        help="uncontrolled AVs (their IDM vType), percent (default 0)",
+    )  # fmt: skip
     sumo_run_options(p)
     p.set_defaults(func=cmd_parity)
 
@@ -324,20 +490,100 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_bench)
 
-    p = sub.add_parser("run", help="the main job on a scenario: tables, plots, results")
+    p = sub.add_parser(
+        "run", help="the main job: train, export, evaluate in JAX and SUMO, tables"
+    )
     common(p)
     p.add_argument("--out", type=Path, default=Path("results"), help="output folder")
-    p.add_argument("--seeds", type=positive_int, default=3, help="number of seeds")
-    p.add_argument("--quick", action="store_true", help="1 seed, 3 penetrations")
+    p.add_argument("--seeds", type=positive_int, default=2, help="number of seeds")
+    p.add_argument(
+        "--quick", action="store_true",
+        help=f"1 seed, 3 penetrations, {QUICK_TRAIN_STEPS:,} training steps",
+    )  # fmt: skip
+    p.add_argument(
+        "--train-config", default=None,
+        help="PPO config YAML or built-in name (default: ppo_milan)",
+    )  # fmt: skip
+    p.add_argument(
+        "--total-steps", type=positive_int, default=None,
+        help="training env steps (overrides the PPO config)",
+    )  # fmt: skip
     p.add_argument(
         "--workers",
         type=positive_int,
         default=None,
         help="SUMO processes side by side (default: CPUs)",
     )
-    p.add_argument("--force", action="store_true", help="overwrite results.json")
+    p.add_argument("--force", action="store_true", help="overwrite an earlier run")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("train", help="train the AVs' policy with PPO in JAX")
+    p.add_argument(
+        "--config", default=None,
+        help="PPO config YAML or built-in name (default: ppo_milan)",
+    )  # fmt: skip
+    p.add_argument("--out", type=Path, default=None, help="folder of a new run")
+    p.add_argument(
+        "--resume", type=Path, default=None,
+        help="continue the run in this folder from its last checkpoint",
+    )  # fmt: skip
+    p.add_argument("--seed", type=non_negative_int, default=None, help="PRNG seed")
+    p.add_argument(
+        "--total-steps", type=positive_int, default=None,
+        help="env steps over all roundabouts (overrides the config)",
+    )  # fmt: skip
+    p.add_argument("--force", action="store_true", help="overwrite an earlier run")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser(
+        "evaluate", help="a trained policy over penetrations, against uncontrolled AVs"
+    )
+    p.add_argument(
+        "--config", default=None,
+        help="scenario YAML or built-in name (default: the policy's scenario)",
+    )  # fmt: skip
+    p.add_argument(
+        "--policy", type=Path, required=True,
+        help="policy.npz / policy.json, or a training folder",
+    )  # fmt: skip
+    p.add_argument(
+        "--sim", choices=("jax", "sumo"), default="jax",
+        help="jax (default), or sumo: SUMO through libsumo, JAX figures beside",
+    )  # fmt: skip
+    p.add_argument(
+        "--workers", type=positive_int, default=None,
+        help="SUMO processes side by side (default: CPUs)",
+    )  # fmt: skip
+    p.add_argument(
+        "--penetrations", type=percent_list, default=percent_list("0,10,...,100"),
+        help="AV shares in percent, e.g. 0,10,...,100 (the default) or 0,50,100",
+    )  # fmt: skip
+    p.add_argument("--seeds", type=positive_int, default=1, help="number of seeds")
+    p.add_argument(
+        "--max-vehicles", type=positive_int, default=32, help="vehicle slots M"
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--out", type=Path, default=None, help="also write files here")
+    p.add_argument("--force", action="store_true", help="overwrite evaluation.json")
+    p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("export", help="copy a training run's policy (npz + json)")
+    p.add_argument("run_dir", type=Path, help="a `jaxround train` folder")
+    p.add_argument("--out", type=Path, required=True, help="policy.npz to write")
+    p.add_argument("--force", action="store_true", help="overwrite existing files")
+    p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser("render", help="an episode of the JAX environment as GIF/MP4")
+    common(p)
+    p.add_argument("--out", type=Path, required=True, help=".gif or .mp4 to write")
+    p.add_argument("--seconds", type=float, default=120.0, help="simulated seconds")
+    p.add_argument("--every", type=positive_int, default=2, help="steps per frame")
+    p.add_argument("--penetration", type=percent, default=None, help="AVs, percent")
+    p.add_argument("--seed", type=non_negative_int, default=0, help="schedule seed")
+    p.add_argument("--fps", type=float, default=10.0, help="frames per second")
+    p.set_defaults(func=cmd_render)
     return parser
 
 

@@ -1,0 +1,145 @@
+"""The whole study in one call: train, export, evaluate in JAX and in SUMO.
+
+`jaxround run` is `main_job`; `jaxround evaluate --sim sumo` is
+`evaluate_everywhere`. Both write their files into one folder and return the
+JSON they wrote (``results.json`` / ``evaluation.json``).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from jaxround.config import ScenarioConfig
+from jaxround.report import percent_label, write_json, write_tables
+
+#: Training folder inside the main job's output folder.
+TRAIN_DIR = "train"
+#: Env steps of the main job's training with --quick.
+QUICK_TRAIN_STEPS = 262_144
+
+
+def by_label(per_penetration: dict[float, Any]) -> dict[str, Any]:
+    """``{0.1: x}`` -> ``{"10": x}``: penetrations as the paper's percent labels."""
+    return {percent_label(p): m for p, m in per_penetration.items()}
+
+
+def evaluate_everywhere(
+    cfg: ScenarioConfig,
+    policy: str | Path,
+    penetrations: Sequence[float],
+    seeds: Sequence[int],
+    out: Path,
+    workers: int | None = None,
+    progress: bool = True,
+    say: Callable[[str], None] = print,
+    step: str = "",
+) -> dict[str, Any]:
+    """A policy over penetrations in JAX (with the uncontrolled baseline) and
+    in SUMO, on the same schedules; tables, figure and JSON into `out`.
+
+    Returns:
+        ``{"scenario", "seeds", "policy", "sumo": {label: M}, "jax": {label:
+        M}, "jax_uncontrolled": {label: M}, "controller": {label: timing}}``
+        with M as `jaxround.metrics.class_metrics` (means over seeds) plus
+        collisions; also written to ``out/evaluation.json``.
+    """
+    from agents.evaluation import evaluate_policy
+    from sumo_export.evaluate import sumo_policy_sweep
+    from sumo_export.policy_report import write_policy_report
+
+    n = f"{len(penetrations)} penetrations x {len(seeds)} seed(s)"
+    say(f"{step}JAX: policy and uncontrolled AVs, {n}")
+    jax_eval = evaluate_policy(policy, cfg, penetrations, seeds)
+    jax_policy = jax_eval["results"]["policy"]
+    write_tables(jax_policy, out, "jax_policy")
+    write_tables(jax_eval["results"]["uncontrolled"], out, "jax_uncontrolled")
+    say(f"{step}SUMO: the policy through libsumo, {n}")
+    sweep = sumo_policy_sweep(
+        cfg, policy, penetrations, seeds, workers=workers, show_progress=progress
+    )
+    tables = write_policy_report(cfg, sweep, out, policy, jax_results=jax_policy)
+    result = {
+        "scenario": cfg.name,
+        "seeds": list(seeds),
+        "policy": str(policy),
+        "sumo": by_label({p: r["mean"] for p, r in sweep.items()}),
+        "jax": by_label(jax_policy),
+        "jax_uncontrolled": by_label(jax_eval["results"]["uncontrolled"]),
+        "tables": tables,
+    }
+    write_json(result, out / "evaluation.json")
+    return result
+
+
+def main_job(
+    cfg: ScenarioConfig,
+    out: Path,
+    seeds: Sequence[int],
+    penetrations: Sequence[float],
+    train_config: Any,
+    workers: int | None = None,
+    progress: bool = True,
+    say: Callable[[str], None] = print,
+) -> dict[str, Any]:
+    """Scenario files, PPO training, export, evaluation in JAX and SUMO.
+
+    Args:
+        cfg: the scenario evaluated (full demand).
+        out: a fresh output folder.
+        seeds: schedule seeds of the evaluation.
+        penetrations: AV shares of the evaluation.
+        train_config: the `agents.config.PPOConfig` to train.
+
+    Returns:
+        The ``results.json`` object: ``{"sumo": {label: M}, "jax": {label:
+        M}, ...}`` (`evaluate_everywhere`) plus the training summary.
+    """
+    from agents.training import clear_run, enable_compilation_cache, train_to_dir
+    from jaxround.schedule import make_schedule
+    from sumo_export.scenario import write_scenario
+
+    started = time.time()
+    write_scenario(cfg, make_schedule(cfg), out / "scenario")
+    say(f"[1/4] scenario files in {out / 'scenario'}")
+    train_dir = out / TRAIN_DIR
+    train_dir.mkdir(parents=True, exist_ok=True)
+    clear_run(train_dir)
+    (train_dir / "config.yaml").write_text(train_config.to_yaml())
+    say(
+        f"[2/4] PPO: {train_config.num_updates} updates of "
+        f"{train_config.n_envs} x {train_config.n_steps} env steps into {train_dir}"
+    )
+    enable_compilation_cache()
+    trained = train_to_dir(train_config, train_dir, progress=progress, say=say)
+    policy = Path(trained["policy"])
+    result = evaluate_everywhere(
+        cfg, policy, penetrations, seeds, out, workers, progress, say, "[3-4/4] "
+    )
+    result["training"] = {
+        "updates": trained["updates"],
+        "env_steps": trained["updates"] * train_config.env_steps_per_update,
+        "env_steps_per_s": trained["env_steps_per_s"],
+        "last": trained["last"],
+    }
+    result["wall_time_s"] = round(time.time() - started, 1)
+    write_json(result, out / "results.json")
+    return result
+
+
+def headline(result: dict[str, Any]) -> str:
+    """Crossing times at 0%, 50% and 100% AVs in both simulators, in words."""
+    lines = []
+    for sim in ("sumo", "jax", "jax_uncontrolled"):
+        runs = result.get(sim, {})
+        parts = []
+        for label, cls in (("0", "hv"), ("50", "hv"), ("50", "av"), ("100", "av")):
+            m = runs.get(label, {}).get(cls, {})
+            t = m.get("mean_crossing_time_s")
+            if t is not None:
+                parts.append(f"{cls.upper()}s at {label}%: {t:.2f} s")
+        if parts:
+            lines.append(f"{sim}: " + ", ".join(parts))
+    return "\n".join(lines)
