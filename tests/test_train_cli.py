@@ -153,6 +153,6 @@ def test_evaluate_refuses(
     first_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     assert main(["evaluate", "--policy", str(first_run), "--sim", "sumo"]) == 2
-    assert "not yet" in capsys.readouterr().err
+    assert "give --out DIR" in capsys.readouterr().err
     assert main(["evaluate", "--policy", str(tmp_path / "none")]) == 2
     assert "does not exist" in capsys.readouterr().err
