@@ -442,13 +442,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    def sumo_run_options(p: argparse.ArgumentParser) -> None:
+    def workers_option(p: argparse.ArgumentParser) -> None:
         p.add_argument(
             "--workers",
             type=positive_int,
             default=None,
             help="SUMO processes side by side (default: CPUs)",
         )
+
+    def sumo_run_options(p: argparse.ArgumentParser) -> None:
+        workers_option(p)
         p.add_argument("--json", action="store_true", help="print one JSON object")
         p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -508,12 +511,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--total-steps", type=positive_int, default=None,
         help="training env steps (overrides the PPO config)",
     )  # fmt: skip
-    p.add_argument(
-        "--workers",
-        type=positive_int,
-        default=None,
-        help="SUMO processes side by side (default: CPUs)",
-    )
+    workers_option(p)
     p.add_argument("--force", action="store_true", help="overwrite an earlier run")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_run)
@@ -552,10 +550,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--sim", choices=("jax", "sumo"), default="jax",
         help="jax (default), or sumo: SUMO through libsumo, JAX figures beside",
     )  # fmt: skip
-    p.add_argument(
-        "--workers", type=positive_int, default=None,
-        help="SUMO processes side by side (default: CPUs)",
-    )  # fmt: skip
+    workers_option(p)
     p.add_argument(
         "--penetrations", type=percent_list, default=percent_list("0,10,...,100"),
         help="AV shares in percent, e.g. 0,10,...,100 (the default) or 0,50,100",
