@@ -27,9 +27,11 @@ from jaxround.junction import (
     brake_gap,
     entry_approach,
     entry_blocked,
+    entry_blocked_weight,
     entry_candidates,
     register,
 )
+from jaxround.relax import blend, soft_or
 from jaxround.state import EnvParams, Registrations
 
 #: Speed below which SUMO counts a vehicle as waiting / halting (m/s).
@@ -328,17 +330,19 @@ def planned_speed(
                          leave_cap, t, dt, appr_cap,
                          entry_follow)  # fmt: skip
     imp_now = jnp.where(can_brake, imp, 1.0)
-    blocked = before_line & per_slot(
-        entry_blocked(
+    # a weight, exactly 0/1 unless the dynamics are relaxed (jaxround.relax)
+    blocked_w = jnp.zeros(m).at[cand].max(
+        entry_blocked_weight(
             net, p, route[cand], jax.tree.map(pick, ego), regs, imp_now[cand],
             step_label, dt, ego_slot=cand,
-        )
-    )  # fmt: skip
+        ) * cand_ok
+    ) * before_line  # fmt: skip
+    blocked = blocked_w > 0.5
     if debug:
         return {k: v for k, v in locals().items() if isinstance(v, jax.Array)}
     too_late = ~can_brake & (seen < brake_gap(speed, p.emergency_decel, 0.0, dt))
     far = beyond_vis & can_brake
-    must_stop = (seen > 0) & ((blocked & ~too_late) | far)
+    must_stop_w = (seen > 0) * soft_or(blocked_w * ~too_late, far.astype(jnp.float32))
     # a vehicle that must stop at its line plans only up to it: leaders and
     # lane limits beyond the line do not count (SUMO's vSafe = vWait)
     leader_before_line = leader_back < net.yield_offset[route]
@@ -347,7 +351,7 @@ def planned_speed(
         jnp.where(leader_before_line, v_follow_own, jnp.inf),
     )
     v_safe = jnp.minimum(jnp.minimum(v_follow, v_limits), v_free)
-    v_safe = jnp.where(must_stop, v_before_line, v_safe)
+    v_safe = blend(must_stop_w, v_before_line, v_safe)
     v_next = idm.next_speed(
         speed, v_safe, v_lane, p.accel, p.decel, p.emergency_decel, dt, action_step
     )

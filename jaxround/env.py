@@ -22,7 +22,9 @@ import numpy as np
 
 from jaxround import dynamics, emissions, geometry, idm, insertion, observe
 from jaxround.config import ConfigError, ScenarioConfig, load_config
+from jaxround.geometry import NetArrays
 from jaxround.network import CompiledNetwork, compile_network
+from jaxround.relax import soft_step
 from jaxround.reward import av_reward
 from jaxround.schedule import Schedule as NumpySchedule
 from jaxround.state import EnvParams, EnvState, Registrations, Schedule
@@ -315,8 +317,14 @@ class RoundaboutEnv:
         the start of its approach, at the highest speed that is safe behind
         the vehicle ahead; otherwise it waits (and blocks later vehicles of
         its leg) until the next step.
+
+        Insertion is a hard decision and carries no gradient: its inputs are
+        frozen with `stop_gradient` (the inserted speed's sensitivity is left
+        out, which also keeps the backward pass small to compile).
         """
-        p, net, s = params, self.net, state.schedule
+        net, s = self.net, state.schedule
+        p = jax.lax.stop_gradient(params)
+        pos, speed = jax.lax.stop_gradient((state.pos, state.speed))
         g, n, m = self.n_legs, self.n_schedule, self.max_vehicles
         waiting = ~state.inserted & (s.depart_s <= t + 1e-4)  # (N,)
         idx = jnp.arange(n)
@@ -329,7 +337,7 @@ class RoundaboutEnv:
         route = s.route[c]  # (G,)
         front = jnp.full(g, p.length + dynamics.DEPART_OFFSET)
         # the nearest vehicle ahead of the new one's front, along its route
-        back = jnp.maximum(state.pos - p.length, 0.0)
+        back = jnp.maximum(pos - p.length, 0.0)
         _, lane, pos_on_lane = geometry.locate(net, state.route, back)
         proj = geometry.project(net, route, lane, pos_on_lane)  # (G, M) backs
         ahead = jnp.where(state.active[None, :], proj - front[:, None], jnp.nan)
@@ -344,7 +352,7 @@ class RoundaboutEnv:
         # the vehicle plans at its yield line (beyond the visibility distance)
         pi = p.for_vehicles(s.is_av[c])  # (G,) the inserted vehicles' own
         v_follow = insertion.insertion_speed(
-            v_lane, v_lane, state.speed[j],
+            v_lane, v_lane, speed[j],
             jnp.where(free_lane, 1e6, jnp.maximum(gap, 0.0)),
             pi, self.dt, self.n_substeps,
         )  # fmt: skip
@@ -388,18 +396,8 @@ class RoundaboutEnv:
         self, state: EnvState, params: EnvParams, t: jax.Array
     ) -> EnvState:
         """Queued vehicles per leg: halting on the approach plus waiting to enter."""
-        net, s = self.net, state.schedule
-        _, lane, _ = geometry.locate(net, state.route, state.pos)
-        on_entry = lane[None, :] == net.entry_lane[:, None]  # (G, M)
-        halting = state.active & (state.speed < dynamics.HALTING_SPEED)
-        queued = jnp.sum(on_entry & halting[None, :], axis=1)
-        pending = ~state.inserted & (s.depart_s <= t + 1e-4)
-        queued = queued + jnp.sum(
-            pending[None, :] & (s.origin[None, :] == jnp.arange(self.n_legs)[:, None]),
-            axis=1,
-        )
+        q = queued_per_leg(self.net, state, t, jnp.float32(0.0))
         within = t <= params.duration_s + 1e-4
-        q = queued.astype(jnp.float32)
         return state.replace(
             queue_sum=state.queue_sum + jnp.where(within, q, 0.0),
             queue_max=jnp.where(
@@ -413,6 +411,24 @@ class RoundaboutEnv:
         if self.observer == "paper":
             return observe.paper_observation(self.net, state, params)[0]
         return observe.rich_observation(self.net, state, params, self.route_destination)
+
+
+def queued_per_leg(
+    net: NetArrays, state: EnvState, t: jax.Array, temperature: jax.Array
+) -> jax.Array:
+    """Vehicles queued on each approach at time `t`, float (G,): halting there
+    (speed below `dynamics.HALTING_SPEED`, as SUMO's getLastStepHaltingNumber)
+    plus those due that wait to be inserted. Above temperature 0 (m/s) the
+    halting test is smooth (`jaxround.relax`); insertion stays exact."""
+    s = state.schedule
+    n_legs = net.entry_lane.shape[0]
+    _, lane, _ = geometry.locate(net, state.route, state.pos)
+    on_entry = lane[None, :] == net.entry_lane[:, None]  # (G, M)
+    slow = soft_step(dynamics.HALTING_SPEED - state.speed, temperature)
+    halting = state.active * slow
+    pending = ~state.inserted & (s.depart_s <= t + 1e-4)
+    waiting = pending[None, :] & (s.origin[None, :] == jnp.arange(n_legs)[:, None])
+    return jnp.sum(on_entry * halting[None, :], axis=1) + jnp.sum(waiting, axis=1)
 
 
 def av_speed(

@@ -46,6 +46,8 @@ import jax.numpy as jnp
 from jax import lax
 from jax.typing import ArrayLike
 
+from jaxround.safe_math import finite_or, safe_power
+
 #: SUMO's default ``stepping`` of the IDM (seconds per sub-step).
 IDM_STEPPING = 0.25
 #: SUMO's ``NUMERICAL_EPS`` (StdDefs.h).
@@ -133,7 +135,10 @@ def idm_v(
         s = jnp.maximum(0.0, speed * tau + speed * (speed - v_leader) / two_sqrt_ab)
         s = s + s0
         g = jnp.maximum(NUMERICAL_EPS, g)
-        acc = accel * (1.0 - jnp.power(speed / v_des, delta) - (s * s) / (g * g))
+        # no leader (infinite gap): no interaction term, and a finite gradient
+        g_fin = finite_or(g, 1.0)
+        interaction = jnp.where(jnp.isfinite(g), (s * s) / (g_fin * g_fin), 0.0)
+        acc = accel * (1.0 - safe_power(speed / v_des, delta) - interaction)
         speed = jnp.maximum(0.0, speed + acc * h)
         g = g - jnp.maximum(0.0, (speed - v_leader) * h)
         return speed, g
@@ -299,7 +304,7 @@ def maximum_safe_stop_speed_euler(
     b = decel * dt
     t = headway
     s = dt
-    g_pos = jnp.maximum(g, 0.0)
+    g_pos = finite_or(jnp.maximum(g, 0.0), FREE_GAP)  # no stop point: far away
     root = jnp.sqrt(s * s + 4.0 * (s * (2.0 * g_pos / b - t) + t * t))
     n = jnp.floor(0.5 - (t - 0.5 * root) / s)
     h = 0.5 * n * (n - 1.0) * b * s + n * b * t

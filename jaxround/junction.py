@@ -11,6 +11,8 @@ import jax
 import jax.numpy as jnp
 
 from jaxround.geometry import NetArrays, internal_done, locate, normal_done
+from jaxround.relax import blend, soft_any, soft_or, soft_step
+from jaxround.safe_math import finite_or, safe_sqrt
 from jaxround.state import EnvParams, Registrations
 
 
@@ -31,7 +33,7 @@ def minimal_arrival_time(
     t_a = (v_arrive - v) / acc
     w_a = t_a * (v_arrive + v) / 2.0
     rest = t_a + (dist - w_a) / jnp.maximum(jnp.maximum(v, v_arrive), 0.1)
-    root = jnp.sqrt(jnp.maximum(v * v + 2.0 * acc * dist, 0.0))
+    root = safe_sqrt(v * v + 2.0 * acc * dist)
     return jnp.where(dist >= w_a, rest, (v - root) * (-1.0 / acc))
 
 
@@ -83,11 +85,11 @@ def entry_approach(
     )
     # vLinkPass: accelerate over the approach (capped at the approach lane's
     # limit), then lowered by the leaders on the approach (adaptToLeader)
-    a_s = jnp.minimum(jnp.sqrt(2 * a * jnp.maximum(seen, 0) + v_pre**2), v_lane)
+    a_s = jnp.minimum(safe_sqrt(2 * a * jnp.maximum(seen, 0) + v_pre**2), v_lane)
     a_s = jnp.minimum(a_s, v_cap)
     v_plan = jnp.minimum(v_pre, v_cap)
     l_s = jnp.minimum(
-        jnp.minimum(v_link, jnp.sqrt(2 * a * link_len + a_s**2)), leave_cap
+        jnp.minimum(v_link, safe_sqrt(2 * a * link_len + a_s**2)), leave_cap
     )
     if leave_follow is not None:  # futureVSafe of a leader on the entry lane
         has, v_l, gap, fol = leave_follow
@@ -134,8 +136,8 @@ def register(
     pc = p.columns()  # per-vehicle numbers against (M, G) arrays
     a, b, length, tau = pc.accel, p.decel, p.length, pc.tau
     g = net.through_length.shape[0]
-    c_off = net.conflict_offset[route]  # (M, G)
-    dist = c_off - pos[:, None]
+    c_off = net.conflict_offset[route]  # (M, G), nan where the route passes none
+    dist = finite_or(c_off, 0.0) - pos[:, None]
     through = net.through_length[None, :]  # (1, G)
     v_thr = jnp.minimum(
         net.lane_speed[net.through_lane][None, :] * speed_factor[:, None], p.max_speed
@@ -145,16 +147,16 @@ def register(
     on_last_lane = jnp.minimum(d_pos, net.prev_lane_length[route])
     if v_pre is None:
         v_plan = v_plan[:, None]  # (M, 1)
-        a_s = jnp.minimum(jnp.sqrt(2 * a * on_last_lane + v_plan**2), v_thr)
+        a_s = jnp.minimum(safe_sqrt(2 * a * on_last_lane + v_plan**2), v_thr)
         leader_first = leader_back[:, None] < c_off
         a_s = jnp.where(leader_first, jnp.minimum(a_s, leader_cap[:, None]), a_s)
     else:
         # SUMO's running look-ahead speed at each link: only constraints
         # before the link; leaders on the lane before it cap vLinkPass
-        a_s = jnp.minimum(jnp.sqrt(2 * a * on_last_lane + v_pre**2), v_thr)
+        a_s = jnp.minimum(safe_sqrt(2 * a * on_last_lane + v_pre**2), v_thr)
         a_s = jnp.minimum(a_s, ring_cap)
         v_plan = jnp.minimum(v_pre, ring_cap)
-    l_s = jnp.minimum(v_thr, jnp.sqrt(2 * a * through + a_s**2))
+    l_s = jnp.minimum(v_thr, safe_sqrt(2 * a * through + a_s**2))
     if leave_cap is not None:
         l_s = jnp.minimum(l_s, leave_cap)
     if leave_follow is not None:  # futureVSafe of leaders on the via lane
@@ -165,7 +167,7 @@ def register(
     # arrival speed if it brakes (MSCFModel::getMinimalArrivalSpeedEuler)
     disc = v_plan**2 - 2 * b * (dist - v_plan * tau)
     brk = jnp.where(
-        dist < v_plan, jnp.inf, jnp.where(disc >= 0, jnp.sqrt(jnp.abs(disc)), b)
+        dist < v_plan, jnp.inf, jnp.where(disc >= 0, safe_sqrt(jnp.abs(disc)), b)
     )
     braking = jnp.where(
         dist >= brake_gap(v_plan, b, tau, dt), 0.0, jnp.minimum(brk, a_s)
@@ -222,6 +224,29 @@ def entry_blocked(
     Returns:
         bool (E,): some registered foe blocks the ego's entry.
     """
+    weight = entry_blocked_weight(
+        net, params, route, ego, regs, imp, step_label, dt, ego_slot, debug
+    )
+    return weight if debug else weight > 0.5
+
+
+def entry_blocked_weight(
+    net: NetArrays,
+    params: EnvParams,
+    route: jax.Array,
+    ego: Approach,
+    regs: Registrations,
+    imp: jax.Array,
+    step_label: jax.Array,
+    dt: float,
+    ego_slot: jax.Array | None = None,
+    debug: bool = False,
+) -> jax.Array:
+    """`entry_blocked` as a weight: float (E,) in [0, 1], exactly 0 or 1 at
+    ``params.relax_temperature == 0``; above it the two time-gap tests
+    (the foe passed long enough ago, the foe arrives late enough) are smooth
+    in their margins (s), so the decision has a gradient in jm_timegap_minor,
+    the arrival and leave times, and through them every driver parameter."""
     p = params
     b = p.decel
     m = regs.ok.shape[0]
@@ -245,7 +270,7 @@ def entry_blocked(
     v_foe = dist / jnp.maximum(f_at - step_label + dt, 1e-3)
     dist2 = dist - v_foe * (a_t_up - step_label)
     foe_can_stop = v_foe**2 / (2 * mdec) <= dist2
-    root = jnp.sqrt(jnp.maximum(4 * (v_foe - dv) ** 2 - 8 * mdec * area, 0.0))
+    root = safe_sqrt(4 * (v_foe - dv) ** 2 - 8 * mdec * area)
     x = (v_foe - dv - root / 2) / mdec
     same_step = jnp.floor(a_t / dt + 1e-6) == jnp.floor(f_at / dt + 1e-6)
     f_at_brake = jnp.where(foe_can_stop, f_at + 30.0, f_at + x)
@@ -258,15 +283,18 @@ def entry_blocked(
     tg = p.jm_timegap_minor  # the ego's own
     if jnp.ndim(tg):
         tg = tg[ego_slot][:, None]
-    behind = f_lt < a_t
-    blocked_behind = (a_t - f_lt < tg) | (f_ls**2 <= a_s**2)
-    ahead = f_at_imp > l_t + tg
-    blocked_ahead = l_s**2 <= f_asb**2
-    blocked = jnp.where(behind, blocked_behind, jnp.where(ahead, blocked_ahead, True))
+    temp = p.relax_temperature
+    behind = soft_step(a_t - f_lt, temp)
+    blocked_behind = soft_or(
+        soft_step(tg - (a_t - f_lt), temp), (f_ls**2 <= a_s**2).astype(jnp.float32)
+    )
+    ahead = soft_step(f_at_imp - (l_t + tg), temp)
+    blocked_ahead = (l_s**2 <= f_asb**2).astype(jnp.float32)
+    blocked = blend(behind, blocked_behind, blend(ahead, blocked_ahead, 1.0))
     others = jnp.arange(m)[None, :] != ego_slot[:, None]
     if debug:  # every intermediate, for tracing a decision
         return {k: v for k, v in locals().items() if isinstance(v, jax.Array)}
-    return jnp.any(ok & others & blocked, axis=1)
+    return soft_any(jnp.where(ok & others, blocked, 0.0), axis=1)
 
 
 def entry_candidates(

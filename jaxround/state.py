@@ -49,6 +49,10 @@ class EnvParams:
         reward_speed_weight: AV reward: weight of the desired-velocity term.
         reward_pollution_weight: AV reward: weight of the pollution term.
         reward_time_penalty: AV reward: subtracted every step in the network.
+        relax_temperature: 0 runs the exact (SUMO-parity) dynamics; above 0,
+            hard decisions become smooth so that gradients flow through them
+            (`jaxround.relax`). Margins are divided by it in their own units
+            (s for gap acceptance, m/s for halting, m for arrival).
 
     `for_vehicles(is_av)` gives the per-vehicle view the dynamics use.
     """
@@ -77,6 +81,7 @@ class EnvParams:
     reward_speed_weight: jax.Array
     reward_pollution_weight: jax.Array
     reward_time_penalty: jax.Array
+    relax_temperature: jax.Array
 
     @classmethod
     def from_config(cls, cfg: ScenarioConfig) -> EnvParams:
@@ -108,6 +113,7 @@ class EnvParams:
             reward_speed_weight=f(cfg.agent.speed_weight),
             reward_pollution_weight=f(cfg.agent.pollution_weight),
             reward_time_penalty=f(cfg.agent.time_penalty),
+            relax_temperature=f(0.0),
         )
 
     def for_vehicles(self, is_av: jax.Array) -> EnvParams:
