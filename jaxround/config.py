@@ -251,6 +251,21 @@ class ScenarioConfig:
         new.validate()
         return new
 
+    def with_human_drivers(self, **values: float) -> ScenarioConfig:
+        """A validated copy with these human-driver (`drivers.hv`) numbers
+        replaced, e.g. ``with_human_drivers(accel=2.0, tau=1.1)``."""
+        unknown = set(values) - {f.name for f in dataclasses.fields(DriverConfig)}
+        if unknown:
+            raise ConfigError(f"drivers.hv: unknown field(s) {sorted(unknown)}")
+        hv = dataclasses.replace(
+            self.drivers.hv, **{k: float(v) for k, v in values.items()}
+        )
+        new = dataclasses.replace(
+            self, drivers=dataclasses.replace(self.drivers, hv=hv)
+        )
+        new.validate()
+        return new
+
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
@@ -277,7 +292,7 @@ class ScenarioConfig:
 
 
 #: Files in `configs` whose name starts so are trainer configs, not scenarios.
-TRAINER_PREFIX = "ppo_"
+TRAINER_PREFIXES = ("ppo_", "apg_")
 
 
 def builtin_configs() -> list[str]:
@@ -286,7 +301,7 @@ def builtin_configs() -> list[str]:
     return sorted(
         p.name[:-5]
         for p in files
-        if p.name.endswith(".yaml") and not p.name.startswith(TRAINER_PREFIX)
+        if p.name.endswith(".yaml") and not p.name.startswith(TRAINER_PREFIXES)
     )
 
 

@@ -50,6 +50,8 @@ class SumoRun:
     sim_end_s: float
     wall_s: float = 0.0  # seconds the simulation loop took, controller included
     controller_report: dict[str, Any] | None = None  # the controller's report()
+    #: float (T, n_legs) queued vehicles per leg after each step of the horizon
+    queues: np.ndarray | None = None
 
 
 def run_schedule(
@@ -96,6 +98,7 @@ def run_schedule(
         teleports=teleports,
         sim_end_s=float(sim_end),
         wall_s=wall,
+        queues=queues,
     )
 
 

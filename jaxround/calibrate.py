@@ -1,0 +1,387 @@
+"""Fit human-driver parameters to a traffic survey, by gradients or black box.
+
+The survey (`jaxround.survey`: per leg and 10-minute slot, mean and largest
+queue, upstream and downstream flow) of the targets is reproduced on the same
+schedules (the targets file names their seeds) in the JAX environment. The
+loss is the mean squared error of the queue tables, each scaled by its
+target's mean; flows are reported but carry no gradient (insertion is exact).
+
+- `fit_gradient`: Adam on log-ratios to the scenario's values, several random
+  starts in one vmapped batch, through the relaxed dynamics
+  (``relax_temperature``), the gradient clipped by global norm.
+- `fit_black_box`: the cross-entropy method on the same log-ratios, each
+  generation one vmapped batch, for the same budget of simulated seconds.
+
+Both report the loss of their best candidate under the exact dynamics.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import yaml
+from tqdm.auto import tqdm
+
+from jaxround.config import ConfigError, ScenarioConfig
+from jaxround.env import RoundaboutEnv
+from jaxround.schedule import make_schedule
+from jaxround.state import EnvParams, Schedule
+from jaxround.survey import (
+    CALIBRATABLE,
+    MEASURES,
+    Survey,
+    measured_rollout,
+    slot_queues,
+    survey_steps,
+)
+
+#: The fitted tables (the flows carry no gradient).
+FITTED = ("queue_mean_veh", "queue_max_veh")
+#: Candidates stay within these factors of the scenario's values.
+BOUNDS = (0.25, 4.0)
+
+
+def parse_param_names(text: str) -> tuple[str, ...]:
+    """ "accel,tau" -> ("accel", "tau"), with a clear error for unknown names."""
+    names = tuple(x.strip() for x in text.split(",") if x.strip())
+    unknown = [n for n in names if n not in CALIBRATABLE]
+    if not names or unknown:
+        raise ConfigError(
+            f"--params: unknown {unknown or 'empty list'}; choose from "
+            + ",".join(CALIBRATABLE)
+        )
+    if len(set(names)) != len(names):
+        raise ConfigError(f"--params: {text!r} names a parameter twice")
+    return names
+
+
+@dataclass
+class Problem:
+    """A calibration problem: the environment, what is fitted, the targets.
+
+    Attributes:
+        names: the fitted EnvParams fields, (P,).
+        reference: float (P,) the scenario's values (log-ratio 0).
+        schedules: the targets' schedules stacked, leaves (B, N).
+        targets: name -> float (S, G) target tables.
+        n_steps: steps of one run (S slots).
+    """
+
+    env: RoundaboutEnv
+    params: EnvParams
+    names: tuple[str, ...]
+    reference: np.ndarray
+    schedules: Schedule
+    targets: dict[str, jax.Array]
+    n_steps: int
+    n_slots: int
+    n_runs: int
+    survey: Survey
+    evaluations: list[int] = field(default_factory=lambda: [0])
+
+    @property
+    def sim_seconds_per_candidate(self) -> float:
+        return self.n_runs * self.n_steps * self.env.dt
+
+    def with_values(self, theta: jax.Array, temperature: float) -> EnvParams:
+        """EnvParams at log-ratios `theta` (P,) to the reference values."""
+        lo, hi = np.log(BOUNDS[0]), np.log(BOUNDS[1])
+        values = jnp.asarray(self.reference) * jnp.exp(jnp.clip(theta, lo, hi))
+        fields = {n: values[i] for i, n in enumerate(self.names)}
+        return self.params.replace(relax_temperature=jnp.float32(temperature), **fields)
+
+    def loss(self, theta: jax.Array, temperature: float) -> jax.Array:
+        """Scaled squared error of the queue tables, averaged over the runs."""
+        params = self.with_values(theta, temperature)
+        env, n = self.env, self.n_steps
+
+        def one(schedule: Schedule) -> jax.Array:
+            obs, state = env.reset_to_schedule(schedule, params)
+            _, queues, _ = measured_rollout(env, params, obs, state, n)
+            return queues
+
+        queues = jax.vmap(one)(self.schedules)  # (B, T, G)
+        q_mean, q_max = slot_queues(queues, n // self.n_slots)
+        sims = {"queue_mean_veh": q_mean.mean(0), "queue_max_veh": q_max.mean(0)}
+        err = 0.0
+        for name in FITTED:
+            target = self.targets[name]
+            scale = jnp.maximum(jnp.mean(target), 0.1)
+            err = err + jnp.mean(((sims[name] - target) / scale) ** 2)
+        return err / len(FITTED)
+
+    def values(self, theta: np.ndarray) -> dict[str, float]:
+        lo, hi = np.log(BOUNDS[0]), np.log(BOUNDS[1])
+        v = self.reference * np.exp(np.clip(np.asarray(theta, np.float64), lo, hi))
+        return {n: float(x) for n, x in zip(self.names, v, strict=True)}
+
+
+def make_problem(
+    env: RoundaboutEnv, params: EnvParams, survey: Survey, names: Sequence[str]
+) -> Problem:
+    """The calibration of `names` to `survey` on its own seeds' schedules."""
+    legs = tuple(leg.name for leg in env.cfg.network.legs)
+    if survey.legs != legs:
+        raise ConfigError(
+            f"the targets' legs {list(survey.legs)} are not the scenario's "
+            f"{list(legs)} (scenario '{env.cfg.name}')"
+        )
+    if not survey.seeds:
+        raise ConfigError("the targets file names no seeds (write it with measure)")
+    horizon = survey.n_slots * survey.slot_s
+    if horizon > env.cfg.demand.duration_s + 1e-6:
+        raise ConfigError(
+            f"the targets cover {horizon:.0f} s, more than the scenario's "
+            f"demand horizon of {env.cfg.demand.duration_s:.0f} s"
+        )
+    n_steps = survey_steps(env, survey.slot_s, survey.n_slots)
+    schedules = [
+        env.schedule_from_numpy(make_schedule(env.cfg, seed=s, penetration=0.0))
+        for s in survey.seeds
+    ]
+    params = params.replace(penetration=jnp.float32(0.0))
+    return Problem(
+        env=env,
+        params=params,
+        names=tuple(names),
+        reference=np.array([float(getattr(params, n)) for n in names]),
+        schedules=jax.tree.map(lambda *x: jnp.stack(x), *schedules),
+        targets={n: jnp.asarray(getattr(survey, n), jnp.float32) for n in FITTED},
+        n_steps=n_steps,
+        n_slots=survey.n_slots,
+        n_runs=len(schedules),
+        survey=survey,
+    )
+
+
+def _initial(key: jax.Array, n: int, p: int, spread: float) -> jax.Array:
+    return jax.random.uniform(key, (n, p), minval=-spread, maxval=spread)
+
+
+def fit_gradient(
+    problem: Problem,
+    key: jax.Array,
+    n_starts: int = 4,
+    n_iters: int = 30,
+    learning_rate: float = 0.05,
+    temperature: float = 0.5,
+    spread: float = 0.4,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Adam from `n_starts` random log-ratios in [-spread, spread], vmapped.
+
+    Returns a dict: "values" (best start, by exact loss), "loss_exact",
+    "history" (per iteration: simulated seconds so far, best relaxed loss),
+    "wall_s", "sim_s", "non_finite_updates".
+    """
+    p = len(problem.names)
+    opt = optax.chain(optax.clip_by_global_norm(1.0), optax.adam(learning_rate))
+    theta = _initial(key, n_starts, p, spread)
+    state = jax.vmap(opt.init)(theta)
+    grad = jax.vmap(jax.value_and_grad(lambda th: problem.loss(th, temperature)))
+
+    @jax.jit
+    def update(theta, state):
+        loss, g = grad(theta)
+        ok = jnp.all(jnp.isfinite(g), axis=1) & jnp.isfinite(loss)
+        g = jnp.where(ok[:, None], g, 0.0)  # a non-finite gradient is skipped
+        updates, state = jax.vmap(opt.update)(g, state)
+        return optax.apply_updates(theta, updates), state, loss, ~ok
+
+    started = time.perf_counter()
+    history, skipped = [], 0
+    per_iter = n_starts * problem.sim_seconds_per_candidate
+    for i in tqdm(range(n_iters), desc="gradient fit", disable=not progress):
+        theta, state, loss, bad = update(theta, state)
+        skipped += int(jnp.sum(bad))
+        history.append(((i + 1) * per_iter, float(jnp.nanmin(loss))))
+    return _finish(problem, theta, history, started, skipped, n_iters * per_iter)
+
+
+def fit_black_box(
+    problem: Problem,
+    key: jax.Array,
+    population: int = 8,
+    n_iters: int = 15,
+    elite: float = 0.25,
+    spread: float = 0.4,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """The cross-entropy method on the exact dynamics: each generation
+    `population` candidates around the mean, the best `elite` share sets the
+    next mean and spread. Same return as `fit_gradient`."""
+    p = len(problem.names)
+    n_elite = max(2, int(round(elite * population)))
+    losses = jax.jit(jax.vmap(lambda th: problem.loss(th, 0.0)))
+    mean, std = jnp.zeros(p), jnp.full(p, spread)
+    started = time.perf_counter()
+    history, best_theta, best = [], None, np.inf
+    per_iter = population * problem.sim_seconds_per_candidate
+    for i in tqdm(range(n_iters), desc="black-box fit", disable=not progress):
+        key, sub = jax.random.split(key)
+        cand = mean + std * jax.random.normal(sub, (population, p))
+        loss = np.asarray(losses(cand))
+        order = np.argsort(np.where(np.isfinite(loss), loss, np.inf))
+        top = cand[order[:n_elite]]
+        mean, std = jnp.mean(top, 0), jnp.std(top, 0) + 1e-3
+        if loss[order[0]] < best:
+            best, best_theta = float(loss[order[0]]), np.asarray(cand[order[0]])
+        history.append(((i + 1) * per_iter, best))
+    theta = jnp.asarray(best_theta)[None, :]
+    return _finish(problem, theta, history, started, 0, n_iters * per_iter)
+
+
+def _finish(
+    problem: Problem,
+    theta: jax.Array,
+    history: list[tuple[float, float]],
+    started: float,
+    skipped: int,
+    sim_s: float,
+) -> dict[str, Any]:
+    """Pick the candidate with the lowest exact loss."""
+    exact = np.asarray(jax.jit(jax.vmap(lambda th: problem.loss(th, 0.0)))(theta))
+    i = int(np.nanargmin(exact))
+    return {
+        "values": problem.values(np.asarray(theta[i])),
+        "loss_exact": float(exact[i]),
+        "history": [{"sim_s": s, "loss": v} for s, v in history],
+        "wall_s": time.perf_counter() - started,
+        "sim_s": sim_s,
+        "non_finite_updates": skipped,
+    }
+
+
+def _unstack(tree: Any, n: int) -> list[Any]:
+    return [jax.tree.map(lambda x, i=i: x[i], tree) for i in range(n)]
+
+
+def survey_errors(sim: Survey, target: Survey) -> dict[str, float]:
+    """Relative error of each table's mean (sim vs target), and the worst
+    per-cell absolute error of the mean queue."""
+    out = {}
+    for name in MEASURES:
+        t = float(np.mean(getattr(target, name)))
+        s = float(np.mean(getattr(sim, name)))
+        out[name] = abs(s - t) / max(abs(t), 1e-9)
+    out["queue_mean_veh_max_cell_abs"] = float(
+        np.max(np.abs(sim.queue_mean_veh - target.queue_mean_veh))
+    )
+    return out
+
+
+def run_calibration(
+    cfg: ScenarioConfig,
+    survey: Survey,
+    names: Sequence[str],
+    out: Path,
+    *,
+    starts: int = 4,
+    iters: int = 30,
+    temperature: float = 0.5,
+    learning_rate: float = 0.05,
+    black_box: bool = True,
+    check_sumo: bool = True,
+    workers: int | None = None,
+    progress: bool = True,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """The whole `jaxround calibrate` job; writes into `out`:
+
+    - calibration.json: fitted values, errors, budgets, wall times, histories;
+    - hv_vtype.xml: the human drivers' SUMO vType with the fitted values;
+    - fitted.yaml: the scenario with the fitted values (for `measure`, `sumo`);
+    - calibration.png: loss against simulated seconds for both methods.
+    """
+    from jaxround.env import make
+    from jaxround.survey import jax_survey
+    from sumo_export.scenario import vtype_xml
+
+    env, params = make(cfg)
+    problem = make_problem(env, params, survey, names)
+    key = jax.random.PRNGKey(seed)
+    result: dict[str, Any] = {
+        "scenario": cfg.name,
+        "params": list(names),
+        "start_values": problem.values(np.zeros(len(names))),
+        "target_drivers": survey.drivers,
+        "seeds": list(survey.seeds),
+        "n_slots": survey.n_slots,
+        "temperature": temperature,
+    }
+    fits = {"gradient": fit_gradient(
+        problem, key, n_starts=starts, n_iters=iters, learning_rate=learning_rate,
+        temperature=temperature, progress=progress,
+    )}  # fmt: skip
+    if black_box:
+        # the same budget of simulated seconds, spent on 8-candidate generations
+        population = 8
+        gens = max(1, round(starts * iters / population))
+        fits["black_box"] = fit_black_box(
+            problem, key, population=population, n_iters=gens, progress=progress
+        )
+    for name, fit in fits.items():
+        fitted = cfg.with_human_drivers(**fit["values"])
+        fit_params = problem.params.replace(
+            **{k: jnp.float32(v) for k, v in fit["values"].items()}
+        )
+        sim = jax_survey(
+            env, fit_params, list(_unstack(problem.schedules, problem.n_runs)),
+            survey.seeds, survey.n_slots, survey.slot_s,
+        )  # fmt: skip
+        fit["jax_errors"] = survey_errors(sim, survey)
+        if check_sumo:
+            from sumo_export.measure import sumo_survey
+
+            back = sumo_survey(
+                fitted, survey.seeds, survey.n_slots, survey.slot_s, workers=workers
+            )
+            fit["sumo_errors"] = survey_errors(back, survey)
+        if survey.drivers:
+            fit["param_errors"] = {
+                k: abs(v - survey.drivers[k]) / abs(survey.drivers[k])
+                for k, v in fit["values"].items()
+                if k in survey.drivers and survey.drivers[k]
+            }
+    result["fits"] = fits
+    best = fits["gradient"]["values"]
+    fitted_cfg = cfg.with_human_drivers(**best)
+    (out / "hv_vtype.xml").write_text(
+        vtype_xml("hv", fitted_cfg.drivers.hv, cfg.simulation.dt_s) + "\n"
+    )
+    plain = json.loads(json.dumps(fitted_cfg.to_dict()))
+    (out / "fitted.yaml").write_text(yaml.safe_dump(plain, sort_keys=False))
+    (out / "calibration.json").write_text(json.dumps(result, indent=1) + "\n")
+    plot_calibration(fits, out / "calibration.png")
+    return result
+
+
+def plot_calibration(fits: dict[str, dict[str, Any]], path: Path) -> None:
+    """Best loss against simulated seconds, one line per method."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    for name, fit in fits.items():
+        h = fit["history"]
+        label = f"{name} ({fit['wall_s']:.0f} s wall)"
+        ax.plot([x["sim_s"] / 3600 for x in h], [x["loss"] for x in h], label=label)
+    ax.set_xlabel("simulated hours")
+    ax.set_ylabel("survey loss (best so far)")
+    ax.set_yscale("log")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
