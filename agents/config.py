@@ -1,13 +1,15 @@
-"""PPO settings: one frozen dataclass, loaded strictly from YAML.
+"""Trainer settings: one frozen dataclass per algorithm, loaded strictly from YAML.
 
     cfg = load_ppo_config("ppo_milan")          # or a path to a YAML file
     cfg = cfg.replace(seed=3, total_env_steps=10_000)
     scenario = cfg.training_scenario()          # the short training episodes
+    apg = load_apg_config("apg_milan")          # the analytic-gradient trainer
 
 An unknown key, a value of the wrong type or out of range raises
 `jaxround.config.ConfigError` naming the field (``lr: -0.1, expected > 0``)
 before anything runs. Derived numbers (`num_updates`, `minibatch_size`) are
-properties, never stored.
+properties, never stored. `PPOConfig` and `APGConfig` share the scenario
+fields and their checks (`TrainerConfig`).
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ import typing
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar, TypeVar
 
 import yaml
 
@@ -33,10 +35,110 @@ from jaxround.config import load_config as load_scenario
 
 #: Activations of the policy and value MLPs.
 ACTIVATIONS = ("tanh", "relu")
+Config = TypeVar("Config", bound="TrainerConfig")
+
+
+class TrainerConfig:
+    """What the trainers' configs share: the scenario fields' checks, YAML and
+    the training scenario. Subclasses are frozen dataclasses with the fields
+    `scenario`, `demand_window_s`, `episode_s`, `max_vehicles`, `penetrations`,
+    `observer`, `n_envs`, `total_env_steps`, `hidden`, `activation`,
+    `checkpoint_every`, `keep_checkpoints` and `seed`, and a property
+    `env_steps_per_update`."""
+
+    #: Name in error messages and file names ("PPO": ``ppo_*.yaml``).
+    KIND: ClassVar[str] = ""
+
+    @property
+    def num_updates(self) -> int:
+        """Updates of a run: total_env_steps // env_steps_per_update."""
+        return self.total_env_steps // self.env_steps_per_update
+
+    def validate_common(self) -> None:
+        """Raise `ConfigError` naming the first bad shared field."""
+        c: Any = self
+        for name in ("demand_window_s", "episode_s"):
+            _require(getattr(c, name) > 0, name, getattr(c, name), "> 0")
+        for name in (
+            "max_vehicles",
+            "n_envs",
+            "total_env_steps",
+            "checkpoint_every",
+            "keep_checkpoints",
+        ):
+            _require(getattr(c, name) >= 1, name, getattr(c, name), ">= 1")
+        _require(c.seed >= 0, "seed", c.seed, ">= 0")
+        if not c.penetrations:
+            raise ConfigError("penetrations: empty, expected at least one share")
+        for i, p in enumerate(c.penetrations):
+            _require(0 <= p <= 1, f"penetrations[{i}]", p, "a share in [0, 1]")
+        if c.observer and c.observer not in OBSERVERS:
+            raise ConfigError(
+                f"observer: {c.observer!r}, expected '' or one of {OBSERVERS}"
+            )
+        if c.activation not in ACTIVATIONS:
+            raise ConfigError(
+                f"activation: {c.activation!r}, expected one of {ACTIVATIONS}"
+            )
+        if not c.hidden:
+            raise ConfigError("hidden: empty, expected at least one layer width")
+        for i, h in enumerate(c.hidden):
+            _require(h >= 1, f"hidden[{i}]", h, ">= 1")
+
+    def validate_updates(self) -> None:
+        """Raise `ConfigError` if the run is shorter than one update."""
+        c: Any = self
+        if self.num_updates < 1:
+            raise ConfigError(
+                f"total_env_steps: {c.total_env_steps} is less than one update "
+                f"({c.env_steps_per_update} env steps)"
+            )
+
+    def replace(self: Config, **changes: Any) -> Config:
+        """A validated copy with these fields replaced (strict, as from YAML)."""
+        return trainer_config_from_dict(type(self), {**self.to_dict(), **changes})
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data (lists for tuples), as written to YAML."""
+        return {
+            k: list(v) if isinstance(v, tuple) else v
+            for k, v in dataclasses.asdict(self).items()
+        }
+
+    def to_yaml(self) -> str:
+        return yaml.safe_dump(self.to_dict(), sort_keys=False)
+
+    # ------------------------------------------------------------ scenario
+
+    def base_scenario(self) -> ScenarioConfig:
+        """The scenario as given (full demand), with `observer` applied."""
+        c: Any = self
+        cfg = load_scenario(c.scenario)
+        if not c.observer:
+            return cfg
+        d = cfg.to_dict()
+        d["agent"]["observer"] = c.observer
+        return config_from_dict(d)
+
+    def training_scenario(self) -> ScenarioConfig:
+        """The scenario cut to `demand_window_s` at its own rate of vehicles.
+
+        The window keeps the scenario's vehicles per second:
+        ``round(n_vehicles * demand_window_s / duration_s)`` vehicles (at least
+        one); the first penetration is the config's default share of AVs.
+        """
+        c: Any = self
+        base = self.base_scenario()
+        d = base.to_dict()
+        rate = base.demand.n_vehicles / base.demand.duration_s
+        d["demand"]["n_vehicles"] = max(1, round(rate * c.demand_window_s))
+        d["demand"]["duration_s"] = c.demand_window_s
+        d["simulation"]["penetration"] = c.penetrations[0]
+        return config_from_dict(d)
 
 
 @dataclass(frozen=True)
-class PPOConfig:
+class PPOConfig(TrainerConfig):
     """Everything `agents.ppo.make_train` needs. One env step steps all M slots."""
 
     scenario: str = "milan"  # built-in scenario name or YAML path (network, drivers)
@@ -66,17 +168,14 @@ class PPOConfig:
     keep_checkpoints: int = 3  # checkpoints kept on disk (CLI)
     seed: int = 0  # PRNG seed of the whole run
 
+    KIND: ClassVar[str] = "PPO"
+
     # ------------------------------------------------------------ derived
 
     @property
     def env_steps_per_update(self) -> int:
         """Env steps of one rollout over all roundabouts: n_envs * n_steps."""
         return self.n_envs * self.n_steps
-
-    @property
-    def num_updates(self) -> int:
-        """PPO updates of a run: total_env_steps // env_steps_per_update."""
-        return self.total_env_steps // self.env_steps_per_update
 
     @property
     def minibatch_env_steps(self) -> int:
@@ -92,103 +191,88 @@ class PPOConfig:
 
     def validate(self) -> None:
         """Raise `ConfigError` naming the first bad field."""
-        for name in ("demand_window_s", "episode_s", "lr", "clip_eps"):
+        self.validate_common()
+        for name in ("lr", "clip_eps"):
             _require(getattr(self, name) > 0, name, getattr(self, name), "> 0")
         for name in ("vf_coef", "ent_coef", "max_grad_norm", "reward_scale"):
             _require(getattr(self, name) >= 0, name, getattr(self, name), ">= 0")
-        for name in (
-            "max_vehicles",
-            "n_envs",
-            "n_steps",
-            "total_env_steps",
-            "epochs",
-            "minibatches",
-            "checkpoint_every",
-            "keep_checkpoints",
-        ):
+        for name in ("n_steps", "epochs", "minibatches"):
             _require(getattr(self, name) >= 1, name, getattr(self, name), ">= 1")
-        _require(self.seed >= 0, "seed", self.seed, ">= 0")
         _require(0 < self.gamma <= 1, "gamma", self.gamma, "in (0, 1]")
         _require(0 <= self.gae_lambda <= 1, "gae_lambda", self.gae_lambda, "in [0, 1]")
-        if not self.penetrations:
-            raise ConfigError("penetrations: empty, expected at least one share")
-        for i, p in enumerate(self.penetrations):
-            _require(0 <= p <= 1, f"penetrations[{i}]", p, "a share in [0, 1]")
-        if self.observer and self.observer not in OBSERVERS:
-            raise ConfigError(
-                f"observer: {self.observer!r}, expected '' or one of {OBSERVERS}"
-            )
-        if self.activation not in ACTIVATIONS:
-            raise ConfigError(
-                f"activation: {self.activation!r}, expected one of {ACTIVATIONS}"
-            )
-        if not self.hidden:
-            raise ConfigError("hidden: empty, expected at least one layer width")
-        for i, h in enumerate(self.hidden):
-            _require(h >= 1, f"hidden[{i}]", h, ">= 1")
         if self.env_steps_per_update % self.minibatches:
             raise ConfigError(
                 f"minibatches: {self.minibatches} does not divide n_envs * n_steps "
                 f"= {self.env_steps_per_update}"
             )
-        if self.num_updates < 1:
-            raise ConfigError(
-                f"total_env_steps: {self.total_env_steps} is less than one update "
-                f"(n_envs * n_steps = {self.env_steps_per_update})"
-            )
+        self.validate_updates()
 
-    def replace(self, **changes: Any) -> PPOConfig:
-        """A validated copy with these fields replaced (strict, as from YAML)."""
-        return ppo_config_from_dict({**self.to_dict(), **changes})
 
-    def to_dict(self) -> dict[str, Any]:
-        """Plain data (lists for tuples), as written to YAML."""
-        return {
-            k: list(v) if isinstance(v, tuple) else v
-            for k, v in dataclasses.asdict(self).items()
-        }
+@dataclass(frozen=True)
+class APGConfig(TrainerConfig):
+    """Everything `agents.apg.make_train` needs: the scenario fields as in
+    `PPOConfig`, then the analytic-gradient settings. One env step steps all
+    M slots; one update differentiates a window of `horizon` steps."""
 
-    def to_yaml(self) -> str:
-        return yaml.safe_dump(self.to_dict(), sort_keys=False)
+    scenario: str = "milan"  # built-in scenario name or YAML path (network, drivers)
+    demand_window_s: float = 300.0  # training demand horizon, s; the scenario's rate
+    episode_s: float = 360.0  # training episode length, s (window plus a drain)
+    max_vehicles: int = 32  # vehicle slots M per roundabout
+    penetrations: tuple[float, ...] = (1.0,)  # AV shares; env i uses entry i % len
+    observer: str = ""  # the AVs' observer; empty: the scenario's agent.observer
+    relax_temperature: float = 0.5  # training dynamics' smoothness; 0: exact (eval)
+    n_envs: int = 64  # roundabouts stepped side by side (split over devices)
+    horizon: int = 32  # env steps per differentiated window (truncated backprop)
+    total_env_steps: int = 1_000_000  # env steps over all roundabouts and updates
+    lr: float = 1e-3  # Adam learning rate (start value when annealed)
+    anneal_lr: bool = True  # decay the learning rate linearly to 0
+    max_grad_norm: float = 1.0  # global gradient-norm clip
+    hidden: tuple[int, ...] = (64, 64)  # MLP layer widths (the critic is unused)
+    activation: str = "tanh"  # "tanh" or "relu"
+    centralised: bool = False  # append the mean of the other vehicles' obs rows
+    checkpoint_every: int = 10  # updates between checkpoints (CLI)
+    keep_checkpoints: int = 3  # checkpoints kept on disk (CLI)
+    seed: int = 0  # PRNG seed of the whole run
 
-    # ------------------------------------------------------------ scenario
+    KIND: ClassVar[str] = "APG"
 
-    def base_scenario(self) -> ScenarioConfig:
-        """The scenario as given (full demand), with `observer` applied."""
-        cfg = load_scenario(self.scenario)
-        if not self.observer:
-            return cfg
-        d = cfg.to_dict()
-        d["agent"]["observer"] = self.observer
-        return config_from_dict(d)
+    @property
+    def env_steps_per_update(self) -> int:
+        """Env steps of one window over all roundabouts: n_envs * horizon."""
+        return self.n_envs * self.horizon
 
-    def training_scenario(self) -> ScenarioConfig:
-        """The scenario cut to `demand_window_s` at its own rate of vehicles.
-
-        The window keeps the scenario's vehicles per second:
-        ``round(n_vehicles * demand_window_s / duration_s)`` vehicles (at least
-        one); the first penetration is the config's default share of AVs.
-        """
-        base = self.base_scenario()
-        d = base.to_dict()
-        rate = base.demand.n_vehicles / base.demand.duration_s
-        d["demand"]["n_vehicles"] = max(1, round(rate * self.demand_window_s))
-        d["demand"]["duration_s"] = self.demand_window_s
-        d["simulation"]["penetration"] = self.penetrations[0]
-        return config_from_dict(d)
+    def validate(self) -> None:
+        """Raise `ConfigError` naming the first bad field."""
+        self.validate_common()
+        _require(self.lr > 0, "lr", self.lr, "> 0")
+        _require(self.max_grad_norm > 0, "max_grad_norm", self.max_grad_norm, "> 0")
+        _require(self.horizon >= 1, "horizon", self.horizon, ">= 1")
+        _require(
+            self.relax_temperature >= 0,
+            "relax_temperature",
+            self.relax_temperature,
+            ">= 0 (0: the exact dynamics)",
+        )
+        self.validate_updates()
 
 
 # --------------------------------------------------------------------------- loading
 
 
-def builtin_ppo_configs() -> list[str]:
-    """Names of the PPO configs shipped in the `configs` package (``ppo_*.yaml``)."""
+def builtin_trainer_configs(kind: str) -> list[str]:
+    """Names of the trainer configs of a kind ("PPO": ``configs/ppo_*.yaml``)."""
+    prefix = kind.lower() + "_"
     files = resources.files("configs").iterdir()
     return sorted(
         p.name[:-5]
         for p in files
-        if p.name.startswith("ppo_") and p.name.endswith(".yaml")
+        if p.name.startswith(prefix) and p.name.endswith(".yaml")
     )
+
+
+def builtin_ppo_configs() -> list[str]:
+    """Names of the PPO configs shipped in the `configs` package (``ppo_*.yaml``)."""
+    return builtin_trainer_configs("PPO")
 
 
 def load_ppo_config(source: str | Path | None = None) -> PPOConfig:
@@ -204,24 +288,60 @@ def load_ppo_config(source: str | Path | None = None) -> PPOConfig:
     Raises:
         ConfigError: the file is missing, not YAML, or a field is wrong.
     """
-    source = "ppo_milan" if source is None else source
-    data = read_yaml(source, builtin_ppo_configs(), "PPO")
-    return ppo_config_from_dict(data if data is not None else {})
+    return load_trainer_config(PPOConfig, source)
+
+
+def load_apg_config(source: str | Path | None = None) -> APGConfig:
+    """Load and validate an APG config.
+
+    Args:
+        source: a YAML path or the name of a built-in APG config
+            (``"apg_milan"``, the default).
+
+    Returns:
+        The validated `APGConfig`.
+
+    Raises:
+        ConfigError: the file is missing, not YAML, or a field is wrong.
+    """
+    return load_trainer_config(APGConfig, source)
+
+
+def load_trainer_config(cls: type[Config], source: str | Path | None = None) -> Config:
+    """Load and validate a config of class `cls` (default: its ``*_milan``)."""
+    kind = cls.KIND
+    source = f"{kind.lower()}_milan" if source is None else source
+    data = read_yaml(source, builtin_trainer_configs(kind), kind)
+    return trainer_config_from_dict(cls, data if data is not None else {})
 
 
 def ppo_config_from_dict(data: Any) -> PPOConfig:
     """Build and validate a `PPOConfig` from plain data; missing keys take defaults."""
+    return trainer_config_from_dict(PPOConfig, data)
+
+
+def apg_config_from_dict(data: Any) -> APGConfig:
+    """Build and validate an `APGConfig` from plain data; missing keys take defaults."""
+    return trainer_config_from_dict(APGConfig, data)
+
+
+def trainer_config_from_dict(cls: type[Config], data: Any) -> Config:
+    """Build and validate a config of class `cls` from plain data (strict keys
+    and types; missing keys take defaults)."""
+    kind = cls.KIND
     if not isinstance(data, dict):
-        raise ConfigError(f"PPO config: expected a mapping, got {type(data).__name__}")
-    fields = {f.name: f for f in dataclasses.fields(PPOConfig)}
+        raise ConfigError(
+            f"{kind} config: expected a mapping, got {type(data).__name__}"
+        )
+    fields = {f.name: f for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - set(fields))
     if unknown:
         raise ConfigError(
-            f"PPO config: unknown key {unknown[0]!r} (allowed: {', '.join(fields)})"
+            f"{kind} config: unknown key {unknown[0]!r} (allowed: {', '.join(fields)})"
         )
-    hints = typing.get_type_hints(PPOConfig)
+    hints = typing.get_type_hints(cls)
     kwargs = {name: _convert(hints[name], v, name) for name, v in data.items()}
-    cfg = PPOConfig(**kwargs)
+    cfg = cls(**kwargs)
     cfg.validate()
     return cfg
 
@@ -261,8 +381,15 @@ def _require(ok: bool, where: str, value: Any, expected: str) -> None:
 
 __all__ = [
     "ACTIVATIONS",
+    "APGConfig",
     "PPOConfig",
+    "TrainerConfig",
+    "apg_config_from_dict",
     "builtin_ppo_configs",
+    "builtin_trainer_configs",
+    "load_apg_config",
     "load_ppo_config",
+    "load_trainer_config",
     "ppo_config_from_dict",
+    "trainer_config_from_dict",
 ]

@@ -33,19 +33,20 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 import optax
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from agents import networks
+from agents.batch import (
+    BATCH_AXIS,
+    BatchTrainer,
+    agent_outcomes,
+    batch_sharding,
+    slot_left,
+)
 from agents.config import PPOConfig
 from agents.losses import Batch, compute_gae, masked_mean, ppo_loss
-from jaxround.config import ConfigError
-from jaxround.env import make
-from jaxround.state import EnvParams, EnvState
+from jaxround.state import EnvState
 
-#: Name of the mesh axis the roundabout batch is split over.
-BATCH_AXIS = "batch"
 #: Per-update metrics, in the order of the CSV columns.
 METRICS = (
     "reward_per_agent_step",
@@ -102,54 +103,18 @@ class Transition(NamedTuple):
     crossing_s: jax.Array  # float crossing time of an agent that left (else 0)
 
 
-def batch_sharding(n_envs: int) -> NamedSharding:
-    """Sharding of arrays whose first axis is the roundabout batch, over local devices.
-
-    Raises:
-        ConfigError: `n_envs` is not a multiple of the number of devices.
-    """
-    devices = jax.local_devices()
-    if n_envs % len(devices):
-        raise ConfigError(
-            f"n_envs: {n_envs} roundabouts cannot be split evenly over "
-            f"{len(devices)} devices"
-        )
-    mesh = Mesh(np.asarray(devices), (BATCH_AXIS,))
-    return NamedSharding(mesh, PartitionSpec(BATCH_AXIS))
-
-
-def slot_left(before: EnvState, after: EnvState, done: jax.Array) -> jax.Array:
-    """bool (..., M): the slot's vehicle left during the step (not at an episode end).
-
-    A vehicle left when its slot is empty afterwards or holds another vehicle.
-    Where the episode ended the state after is a fresh episode's and says
-    nothing; those samples are truncated instead.
-    """
-    gone = ~after.active | (after.vid != before.vid)
-    return before.active & gone & ~done[..., None]
-
-
-class Trainer:
+class Trainer(BatchTrainer):
     """PPO on one config: environment, network, optimiser and the pure update.
 
-    Static settings live here; everything that changes lives in `RunnerState`.
+    Static settings live here (the roundabout batch and the loop of updates
+    in `agents.batch.BatchTrainer`); everything that changes lives in
+    `RunnerState`.
     """
 
+    config: PPOConfig
+
     def __init__(self, config: PPOConfig) -> None:
-        config.validate()
-        self.config = config
-        self.sharding = batch_sharding(config.n_envs)
-        self.scenario = config.training_scenario()
-        self.env, params = make(
-            self.scenario, max_vehicles=config.max_vehicles, episode_s=config.episode_s
-        )
-        b = config.n_envs
-        shares = [config.penetrations[i % len(config.penetrations)] for i in range(b)]
-        self.env_params: EnvParams = jax.tree.map(
-            lambda x: jnp.broadcast_to(x, (b, *jnp.shape(x))), params
-        ).replace(penetration=jnp.asarray(shares, jnp.float32))
-        obs, _ = jax.eval_shape(self.env.reset, jax.random.PRNGKey(0), params)
-        self.obs_size = int(obs.shape[-1])
+        super().__init__(config)
         self.network = networks.ActorCritic(
             hidden=tuple(config.hidden),
             activation=config.activation,
@@ -163,46 +128,8 @@ class Trainer:
             optax.clip_by_global_norm(config.max_grad_norm),
             optax.adam(self.lr_schedule, eps=1e-5),
         )
-        self._env_step = jax.vmap(self.env.step_env)
-        self._env_reset = jax.vmap(self.env.reset)
 
     # ------------------------------------------------------------------ pieces
-
-    def shard(self, tree: Any) -> Any:
-        """Constrain every leaf's first axis (the roundabouts) to the batch sharding."""
-        return jax.tree.map(
-            lambda x: jax.lax.with_sharding_constraint(x, self.sharding), tree
-        )
-
-    def env_step(
-        self, keys: jax.Array, state: EnvState, action: jax.Array
-    ) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, dict[str, Any]]:
-        """`jax.vmap(env.step)` over the B roundabouts, resetting only when needed.
-
-        The same as the environment's own automatic reset (`step_env`, then
-        `reset` with the same key where done), but the reset is computed only
-        in steps where some episode ended: the B episodes start together and
-        have one length, so that is one step in `episode_steps`. (Under an
-        outer `vmap`, over seeds, `lax.cond` computes both branches; the
-        result is the same.)
-        """
-        obs, new_state, reward, done, info = self._env_step(
-            keys, state, action, self.env_params
-        )
-
-        def with_reset(carry: tuple[jax.Array, EnvState]):
-            fresh = self._env_reset(keys, self.env_params)
-
-            def pick(reset: jax.Array, stepped: jax.Array) -> jax.Array:
-                where = jnp.reshape(done, done.shape + (1,) * (stepped.ndim - 1))
-                return jnp.where(where, reset, stepped)
-
-            return jax.tree.map(pick, fresh, carry)
-
-        obs, state = jax.lax.cond(
-            jnp.any(done), with_reset, lambda carry: carry, (obs, new_state)
-        )
-        return obs, state, reward, done, info
 
     def apply(self, params: Any, obs: jax.Array, active: jax.Array):
         return self.network.apply(params, obs, active)
@@ -214,8 +141,7 @@ class Trainer:
         params = networks.init_params(
             self.network, k_net, self.obs_size, cfg.max_vehicles
         )
-        keys = jax.random.split(k_env, cfg.n_envs)
-        obs, env_state = self.shard(self._env_reset(keys, self.env_params))
+        obs, env_state = self.reset_envs(k_env)
         return RunnerState(
             params=params,
             opt_state=self.optimizer.init(params),
@@ -234,40 +160,28 @@ class Trainer:
             env_state, obs, ep_return, key = carry
             key, k_act, k_env = jax.random.split(key, 3)
             active = env_state.active  # (B, M)
-            agent = active & env_state.is_av
             out = self.apply(runner.params, obs, active)
             accel, change, log_prob = networks.sample(out, k_act)
             action = networks.env_action(accel, change)  # (B, M, 2)
             obs_next, state_next, reward, done, info = self.env_step(
                 jax.random.split(k_env, b), env_state, action
             )
-            terminated = info["terminated"] | slot_left(env_state, state_next, done)
-            terminated = terminated & active
-            truncated = jnp.broadcast_to(
-                jnp.reshape(info["truncated"], (b, -1)), active.shape
-            )
-            reward = jnp.where(agent, reward, 0.0)
-            ep_return = ep_return + reward
-            finished = terminated & agent
-            vid = jnp.clip(env_state.vid, 0, None)
-            depart = jnp.take_along_axis(env_state.schedule.depart_s, vid, axis=1)
-            t_arrival = (env_state.step + 1).astype(jnp.float32) * dt  # (B,)
+            o = agent_outcomes(env_state, state_next, reward, done, info, ep_return, dt)
             step = Transition(
                 obs=obs,
                 active=active,
-                agent=agent,
+                agent=o.agent,
                 accel=accel,
                 change=change,
                 log_prob=log_prob,
                 value=out.value,
-                reward=reward,
-                terminated=terminated,
-                truncated=truncated,
-                finished_return=jnp.where(finished, ep_return, 0.0),
-                crossing_s=jnp.where(finished, t_arrival[:, None] - depart, 0.0),
+                reward=o.reward,
+                terminated=o.terminated,
+                truncated=o.truncated,
+                finished_return=o.finished_return,
+                crossing_s=o.crossing_s,
             )
-            ep_return = jnp.where(terminated | truncated, 0.0, ep_return)
-            carry = self.shard((state_next, obs_next, ep_return))
+            carry = self.shard((state_next, obs_next, o.episode_return))
             return (*carry, key), step
 
         key, k_roll = jax.random.split(runner.key)
@@ -347,25 +261,6 @@ class Trainer:
             "learning_rate": self.lr_schedule(n_lr_steps),
         }
         return runner._replace(update=runner.update + 1), metrics
-
-    # ------------------------------------------------------------------ runs
-
-    def run_updates(
-        self, runner: RunnerState, n: int
-    ) -> tuple[RunnerState, dict[str, jax.Array]]:
-        """`n` updates by `lax.scan`; metrics (n,) each. Pure."""
-        return jax.lax.scan(lambda r, _: self.update(r), runner, None, length=n)
-
-    def train(self, key: jax.Array) -> tuple[RunnerState, dict[str, jax.Array]]:
-        """The whole run: `num_updates` updates from `init(key)`. Pure (vmap: seeds)."""
-        return self.run_updates(self.init(key), self.config.num_updates)
-
-    def update_chunk(
-        self, n: int
-    ) -> Callable[[RunnerState], tuple[RunnerState, dict[str, jax.Array]]]:
-        """A jitted function doing `n` updates (chunks chain bit-identically to
-        `train`)."""
-        return jax.jit(lambda runner: self.run_updates(runner, n))
 
 
 def make_train(

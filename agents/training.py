@@ -3,12 +3,13 @@
     train_to_dir(cfg, Path("runs/ppo"))                 # fresh run
     train_to_dir(cfg, Path("runs/ppo"), resume=True)    # after a kill
 
-The folder holds
+The config's class picks the algorithm (`ALGORITHMS`): a `PPOConfig` trains
+with `agents.ppo`, an `APGConfig` with `agents.apg`. The folder holds
 
-- ``config.yaml``: the `PPOConfig` of the run (written by the caller);
-- ``metrics.csv``: one row per update (`agents.ppo.METRICS`), appended as the
-  run goes; deterministic: the same config and seed on the same machine give
-  the same file;
+- ``config.yaml``: the config of the run (written by the caller);
+- ``metrics.csv``: one row per update (the algorithm's `METRICS`), appended
+  as the run goes; deterministic: the same config and seed on the same
+  machine give the same file;
 - ``timing.csv``: wall time and env steps per second of each update (kept out
   of ``metrics.csv`` so that file stays deterministic);
 - ``checkpoints/``: Orbax checkpoints of the whole `RunnerState` every
@@ -18,8 +19,8 @@ The folder holds
 
 A resumed run restarts from the last checkpoint and cuts both CSVs back to
 it, so a kill loses at most one checkpoint interval and the curve has no
-duplicate rows. Updates run one jitted call each (`Trainer.update_chunk(1)`),
-which chain bit-identically to `Trainer.train`.
+duplicate rows. Updates run one jitted call each (`update_chunk(1)`), which
+chain bit-identically to the trainer's `train`.
 """
 
 from __future__ import annotations
@@ -32,14 +33,21 @@ import shutil
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import numpy as np
 
-from agents.config import PPOConfig
+from agents import apg, ppo
+from agents.batch import BatchTrainer
+from agents.config import (
+    APGConfig,
+    PPOConfig,
+    TrainerConfig,
+    trainer_config_from_dict,
+)
 from agents.export import POLICY_STEM, PolicyLayout, export_policy
-from agents.ppo import METRICS, RunnerState, Trainer
+from jaxround.config import ConfigError, read_yaml
 
 #: Files and folders a training run writes into its folder.
 RUN_FILES = (
@@ -51,9 +59,10 @@ RUN_FILES = (
     f"{POLICY_STEM}.npz",
     f"{POLICY_STEM}.json",
 )
-CSV_COLUMNS = ("update", "env_steps", *METRICS)
+#: Columns of a PPO run's metrics.csv (`csv_columns` for any config).
+CSV_COLUMNS = ("update", "env_steps", *ppo.METRICS)
 TIMING_COLUMNS = ("update", "wall_s", "env_steps_per_s")
-#: Curves drawn in learning_curves.png: (column, label).
+#: Curves drawn in a PPO run's learning_curves.png: (column, label).
 CURVES = (
     ("episode_return", "return of finished AVs"),
     ("reward_per_agent_step", "reward per AV step"),
@@ -62,17 +71,73 @@ CURVES = (
     ("entropy", "entropy"),
     ("approx_kl", "approx. KL"),
 )
+#: Curves of an APG run.
+APG_CURVES = (
+    ("episode_return", "return of finished AVs"),
+    ("reward_per_agent_step", "reward per AV step"),
+    ("av_crossing_time_s", "AV crossing time (s)"),
+    ("grad_norm", "gradient norm (before clipping)"),
+    ("mean_command", "mean AV command (m/s^2)"),
+    ("skipped_updates", "skipped (non-finite) updates"),
+)
+
+
+class Algorithm(NamedTuple):
+    """What the driver needs to know of a trainer."""
+
+    name: str  # "PPO", as in titles and `--algo` (lower case)
+    config: type[TrainerConfig]  # its config class
+    trainer: type[BatchTrainer]  # its trainer class
+    metrics: tuple[str, ...]  # per-update metrics, in CSV order
+    curves: tuple[tuple[str, str], ...]  # (column, label) of learning_curves.png
+
+
+#: The trainers, by `--algo` name.
+ALGORITHMS = {
+    "ppo": Algorithm("PPO", PPOConfig, ppo.Trainer, ppo.METRICS, CURVES),
+    "apg": Algorithm("APG", APGConfig, apg.APGTrainer, apg.METRICS, APG_CURVES),
+}
+
+
+def algorithm_of(config: TrainerConfig) -> Algorithm:
+    """The `Algorithm` a config trains with (by its class)."""
+    for algo in ALGORITHMS.values():
+        if type(config) is algo.config:
+            return algo
+    raise TypeError(f"no trainer for a {type(config).__name__}")
+
+
+def csv_columns(config: TrainerConfig) -> tuple[str, ...]:
+    """Columns of a run's metrics.csv."""
+    return ("update", "env_steps", *algorithm_of(config).metrics)
+
+
+def load_run_config(path: Path) -> TrainerConfig:
+    """The config of a run folder's ``config.yaml``, of whichever algorithm
+    accepts it (each refuses the others' fields).
+
+    Raises:
+        ConfigError: no algorithm's config accepts the file.
+    """
+    data = read_yaml(path, [], "training")
+    errors = []
+    for name, algo in ALGORITHMS.items():
+        try:
+            return trainer_config_from_dict(algo.config, data)
+        except ConfigError as err:
+            errors.append(f"as {name}: {err}")
+    raise ConfigError(f"{path}: not a training config ({'; '.join(errors)})")
 
 
 @functools.lru_cache(maxsize=2)
-def compiled_trainer(config: PPOConfig) -> tuple[Trainer, Callable, Callable]:
+def compiled_trainer(config: TrainerConfig) -> tuple[Any, Callable, Callable]:
     """(trainer, jitted init, jitted single update) of a config, built once per
     process: repeated runs of one config (a notebook, the tests) reuse them."""
-    trainer = Trainer(config)
+    trainer = algorithm_of(config).trainer(config)
     return trainer, jax.jit(trainer.init), trainer.update_chunk(1)
 
 
-def policy_layout(trainer: Trainer) -> PolicyLayout:
+def policy_layout(trainer: BatchTrainer) -> PolicyLayout:
     """The exported layout of a trainer's network."""
     cfg, scenario = trainer.config, trainer.scenario
     return PolicyLayout(
@@ -88,7 +153,7 @@ def policy_layout(trainer: Trainer) -> PolicyLayout:
 
 
 def train_to_dir(
-    config: PPOConfig,
+    config: TrainerConfig,
     out: Path,
     resume: bool = False,
     progress: bool = True,
@@ -98,7 +163,7 @@ def train_to_dir(
     """Train `config` into the folder `out` (see the module doc).
 
     Args:
-        config: the run's settings.
+        config: the run's settings (`PPOConfig` or `APGConfig`).
         out: the run's folder; it exists (with ``config.yaml``).
         resume: continue from the last checkpoint in ``out/checkpoints``.
         progress: show a tqdm progress bar.
@@ -114,6 +179,8 @@ def train_to_dir(
 
     out = Path(out).absolute()
     n_updates = config.num_updates
+    algo = algorithm_of(config)
+    columns = csv_columns(config)
     trainer, init, update = compiled_trainer(config)
     runner = init(jax.random.PRNGKey(config.seed))
     manager = ocp.CheckpointManager(
@@ -129,7 +196,7 @@ def train_to_dir(
         say(f"resuming {out} at update {start} of {n_updates}")
     elif resume:
         say(f"no checkpoint in {out}: starting from update 0")
-    cut_csv(out / "metrics.csv", CSV_COLUMNS, start)
+    cut_csv(out / "metrics.csv", columns, start)
     cut_csv(out / "timing.csv", TIMING_COLUMNS, start)
 
     curves = out / "learning_curves.png"
@@ -149,7 +216,7 @@ def train_to_dir(
                 rates.append(rate)
             row = {"update": u + 1, "env_steps": (u + 1) * config.env_steps_per_update}
             row.update(metrics)
-            append_csv(out / "metrics.csv", CSV_COLUMNS, row)
+            append_csv(out / "metrics.csv", columns, row)
             append_csv(
                 out / "timing.csv",
                 TIMING_COLUMNS,
@@ -163,7 +230,9 @@ def train_to_dir(
                 )
             if (u + 1) % config.checkpoint_every == 0 or u + 1 == n_updates:
                 manager.save(u + 1, args=ocp.args.StandardSave(runner))
-                plot_learning_curves(out / "metrics.csv", curves, window)
+                plot_learning_curves(
+                    out / "metrics.csv", curves, window, algo.curves, algo.name
+                )
         manager.wait_until_finished()
     finally:
         manager.close()
@@ -180,7 +249,9 @@ def train_to_dir(
         npz, _ = export_policy(
             jax.device_get(runner.params), policy_layout(trainer), out / POLICY_STEM
         )
-        plot_learning_curves(out / "metrics.csv", curves, window)
+        plot_learning_curves(
+            out / "metrics.csv", curves, window, algo.curves, algo.name
+        )
         result["policy"] = str(npz)
     return result
 
@@ -206,7 +277,7 @@ def enable_compilation_cache() -> None:
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
 
-def restore(manager: Any, step: int, like: RunnerState) -> RunnerState:
+def restore(manager: Any, step: int, like: Any) -> Any:
     """The checkpoint of `step`, placed like `like` (same shapes and shardings)."""
     import orbax.checkpoint as ocp
 
@@ -253,9 +324,11 @@ def read_csv(path: Path) -> list[dict[str, str]]:
 # --------------------------------------------------------------------------- curves
 
 
-def updates_per_episode(config: PPOConfig, dt: float) -> int:
+def updates_per_episode(config: TrainerConfig, dt: float) -> int:
     """Updates whose rollouts make up one training episode (at least 1)."""
-    return max(1, round(config.episode_s / dt / config.n_steps))
+    c: Any = config
+    steps_per_update = c.env_steps_per_update // c.n_envs  # per roundabout
+    return max(1, round(c.episode_s / dt / steps_per_update))
 
 
 def trailing_mean(y: np.ndarray, window: int) -> np.ndarray:
@@ -269,8 +342,15 @@ def trailing_mean(y: np.ndarray, window: int) -> np.ndarray:
     return out
 
 
-def plot_learning_curves(metrics_csv: Path, path: Path, window: int = 1) -> None:
-    """Draw the `CURVES` against env steps into a PNG (nothing if no rows yet).
+def plot_learning_curves(
+    metrics_csv: Path,
+    path: Path,
+    window: int = 1,
+    curves: tuple[tuple[str, str], ...] = CURVES,
+    title: str = "PPO",
+) -> None:
+    """Draw six `curves` (PPO's by default) against env steps into a PNG
+    (nothing if no rows yet).
 
     The roundabouts' episodes start together, so an update's statistics
     depend on where in the episode its rollout fell (early in an episode
@@ -287,7 +367,7 @@ def plot_learning_curves(metrics_csv: Path, path: Path, window: int = 1) -> None
         return
     steps = np.array([float(r["env_steps"]) for r in rows])
     fig, axes = plt.subplots(2, 3, figsize=(13, 6.5), constrained_layout=True)
-    for ax, (column, label) in zip(axes.flat, CURVES, strict=True):
+    for ax, (column, label) in zip(axes.flat, curves, strict=True):
         y = np.array([float(r[column]) for r in rows])
         ok = np.isfinite(y)
         ax.plot(steps[ok], y[ok], "-", color="tab:blue", alpha=0.35, linewidth=0.8)
@@ -297,7 +377,7 @@ def plot_learning_curves(metrics_csv: Path, path: Path, window: int = 1) -> None
         ax.set_xlabel("env steps")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
-    fig.suptitle(f"PPO: {len(rows)} updates (bold: mean over {window} updates)")
+    fig.suptitle(f"{title}: {len(rows)} updates (bold: mean over {window} updates)")
     tmp = path.with_name(path.stem + ".tmp.png")
     fig.savefig(tmp, dpi=100)
     plt.close(fig)
@@ -313,14 +393,21 @@ def _progress_bar(total: int, initial: int, enabled: bool) -> Any:
 
 
 __all__ = [
+    "ALGORITHMS",
+    "APG_CURVES",
     "CSV_COLUMNS",
+    "CURVES",
+    "Algorithm",
     "RUN_FILES",
     "TIMING_COLUMNS",
     "append_csv",
     "clear_run",
+    "algorithm_of",
     "compiled_trainer",
+    "csv_columns",
     "cut_csv",
     "enable_compilation_cache",
+    "load_run_config",
     "plot_learning_curves",
     "policy_layout",
     "read_csv",

@@ -248,11 +248,14 @@ def cmd_bench(args: argparse.Namespace) -> None:
 
 
 def cmd_train(args: argparse.Namespace) -> None:
-    from agents.config import load_ppo_config
+    from agents.config import load_trainer_config
     from agents.training import (
+        ALGORITHMS,
         RUN_FILES,
+        algorithm_of,
         clear_run,
         enable_compilation_cache,
+        load_run_config,
         train_to_dir,
     )
 
@@ -271,8 +274,15 @@ def cmd_train(args: argparse.Namespace) -> None:
         saved_file = out / "config.yaml"
         if not saved_file.is_file():
             raise UsageError(f"--resume {out}: no config.yaml there, not a run folder")
-        cfg = load_ppo_config(saved_file)
-        wanted = cfg if args.config is None else load_ppo_config(args.config)
+        cfg = load_run_config(saved_file)
+        algo = algorithm_of(cfg).name.lower()
+        if args.algo is not None and args.algo != algo:
+            raise UsageError(
+                f"--resume {out}: the run trains with {algo}, not --algo {args.algo}"
+            )
+        wanted = (
+            cfg if args.config is None else load_trainer_config(type(cfg), args.config)
+        )
         wanted = wanted.replace(**overrides) if overrides else wanted
         saved, asked = cfg.to_dict(), wanted.to_dict()
         differ = [
@@ -286,7 +296,8 @@ def cmd_train(args: argparse.Namespace) -> None:
     else:
         if args.out is None:
             raise UsageError("give --out DIR for a new run, or --resume DIR")
-        cfg = load_ppo_config(args.config)
+        algo = args.algo or "ppo"
+        cfg = load_trainer_config(ALGORITHMS[algo].config, args.config)
         cfg = cfg.replace(**overrides) if overrides else cfg
         out = fresh_output_dir(args.out, args.force, RUN_FILES)
         clear_run(out)
@@ -297,9 +308,10 @@ def cmd_train(args: argparse.Namespace) -> None:
         if args.no_progress
         else (lambda msg: print(msg, file=sys.stderr))
     )
+    steps = cfg.env_steps_per_update // cfg.n_envs
     say(
-        f"{cfg.num_updates} updates of {cfg.n_envs} x {cfg.n_steps} env steps "
-        f"({cfg.scenario}, {cfg.demand_window_s:g} s of demand), into {out}"
+        f"{algo.upper()}: {cfg.num_updates} updates of {cfg.n_envs} x {steps} env "
+        f"steps ({cfg.scenario}, {cfg.demand_window_s:g} s of demand), into {out}"
     )
     result = train_to_dir(
         cfg, out, resume=args.resume is not None, progress=not args.no_progress,
@@ -393,6 +405,72 @@ def evaluate_in_sumo(
     print(result["tables"])
     print(headline(result))
     print(f"wrote {out / 'evaluation.json'}, tables and sumo_policy.png in {out}")
+
+
+def driver_values(text: str) -> dict[str, float]:
+    """'accel=2.2,tau=1.0' -> {"accel": 2.2, "tau": 1.0}."""
+    out = {}
+    for part in (p.strip() for p in text.split(",") if p.strip()):
+        name, eq, value = part.partition("=")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            eq = ""
+        if not eq:
+            raise argparse.ArgumentTypeError(f"{part!r}: expected name=number")
+    return out
+
+
+def cmd_measure(args: argparse.Namespace) -> None:
+    from jaxround.survey import SLOT_S, n_slots_for
+    from sumo_export.measure import sumo_survey
+
+    cfg = load_config(args.config)
+    if args.set:
+        cfg = cfg.with_human_drivers(**args.set)
+    n_slots = args.slots or n_slots_for(cfg.demand.duration_s)
+    if n_slots * SLOT_S > cfg.demand.duration_s + 1e-6:
+        raise UsageError(
+            f"--slots {n_slots}: {n_slots * SLOT_S:.0f} s is beyond the demand "
+            f"horizon of {cfg.demand.duration_s:.0f} s"
+        )
+    if args.out.exists() and not args.force:
+        raise UsageError(f"--out {args.out}: exists; pass --force to overwrite")
+    survey = sumo_survey(cfg, seeds_of(cfg, args.seeds), n_slots, workers=args.workers)
+    survey.save(args.out)
+    print(f"wrote {args.out}: {n_slots} slots x {cfg.n_legs} legs, seeds "
+          f"{list(survey.seeds)}, human drivers {survey.drivers}")  # fmt: skip
+
+
+def cmd_calibrate(args: argparse.Namespace) -> None:
+    from jaxround.calibrate import parse_param_names, run_calibration
+    from jaxround.survey import load_survey
+
+    names = parse_param_names(args.params)
+    survey = load_survey(args.targets)
+    cfg = load_config(args.config or survey.scenario or None)
+    out = fresh_output_dir(
+        args.out, args.force,
+        ["calibration.json", "hv_vtype.xml", "fitted.yaml", "calibration.png"],
+    )  # fmt: skip
+    result = run_calibration(
+        cfg, survey, names, out, starts=args.starts, iters=args.iters,
+        temperature=args.temperature, learning_rate=args.lr,
+        black_box=not args.no_black_box, check_sumo=not args.no_sumo_check,
+        workers=args.workers, progress=not args.no_progress,
+    )  # fmt: skip
+    for name, fit in result["fits"].items():
+        values = ", ".join(f"{k}={v:.4g}" for k, v in fit["values"].items())
+        print(f"{name}: {values}")
+        hours = fit["sim_s"] / 3600
+        print(f"  loss {fit['loss_exact']:.4g} (exact dynamics), "
+              f"{hours:.1f} simulated h, {fit['wall_s']:.0f} s wall")  # fmt: skip
+        for where in ("param_errors", "jax_errors", "sumo_errors"):
+            if where in fit:
+                errs = ", ".join(f"{k} {v:.1%}" for k, v in fit[where].items()
+                                 if not k.endswith("_abs"))  # fmt: skip
+                print(f"  {where.replace('_', ' ')}: {errs}")
+    print(f"wrote {out}/calibration.json, hv_vtype.xml, fitted.yaml, calibration.png")
 
 
 def cmd_export(args: argparse.Namespace) -> None:
@@ -516,10 +594,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_run)
 
-    p = sub.add_parser("train", help="train the AVs' policy with PPO in JAX")
+    p = sub.add_parser("train", help="train the AVs' policy with PPO or APG in JAX")
+    p.add_argument(
+        "--algo", choices=("ppo", "apg"), default=None,
+        help="ppo (default) or apg (analytic policy gradients); --resume "
+        "takes the run's own",
+    )  # fmt: skip
     p.add_argument(
         "--config", default=None,
-        help="PPO config YAML or built-in name (default: ppo_milan)",
+        help="trainer config YAML or built-in name (default: ppo_milan, apg_milan)",
     )  # fmt: skip
     p.add_argument("--out", type=Path, default=None, help="folder of a new run")
     p.add_argument(
@@ -563,6 +646,53 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=None, help="also write files here")
     p.add_argument("--force", action="store_true", help="overwrite evaluation.json")
     p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser(
+        "measure",
+        help="survey SUMO runs per leg and 10-minute slot (targets for calibrate)",
+    )
+    common(p)
+    p.add_argument("--out", type=Path, required=True, help="targets JSON to write")
+    p.add_argument("--seeds", type=positive_int, default=1, help="number of seeds")
+    p.add_argument(
+        "--slots", type=positive_int, default=None,
+        help="10-minute slots from the start (default: the whole demand horizon)",
+    )  # fmt: skip
+    p.add_argument(
+        "--set", type=driver_values, default=None,
+        help="human-driver numbers to run with, e.g. accel=2.2,tau=1.0",
+    )  # fmt: skip
+    p.add_argument("--force", action="store_true", help="overwrite --out")
+    workers_option(p)
+    p.set_defaults(func=cmd_measure)
+
+    p = sub.add_parser(
+        "calibrate",
+        help="fit human-driver parameters to a survey by gradients (and black box)",
+    )
+    common(p)
+    p.add_argument("--targets", type=Path, required=True, help="from jaxround measure")
+    p.add_argument(
+        "--params", default="accel,tau,jm_timegap_minor",
+        help="EnvParams to fit, comma-separated (default accel,tau,jm_timegap_minor)",
+    )  # fmt: skip
+    p.add_argument("--out", type=Path, required=True, help="folder to write into")
+    p.add_argument("--starts", type=positive_int, default=4, help="random starts")
+    p.add_argument("--iters", type=positive_int, default=30, help="Adam steps")
+    p.add_argument("--lr", type=float, default=0.05, help="Adam step on log-values")
+    p.add_argument(
+        "--temperature", type=float, default=0.5,
+        help="relaxation of the hard decisions while fitting (0: exact)",
+    )  # fmt: skip
+    p.add_argument("--no-black-box", action="store_true", help="skip the CEM baseline")
+    p.add_argument(
+        "--no-sumo-check", action="store_true",
+        help="do not re-run SUMO with the fitted values",
+    )  # fmt: skip
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.add_argument("--force", action="store_true", help="overwrite files in --out")
+    workers_option(p)
+    p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("export", help="copy a training run's policy (npz + json)")
     p.add_argument("run_dir", type=Path, help="a `jaxround train` folder")

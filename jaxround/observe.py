@@ -122,6 +122,8 @@ def rich_observation(
         & (dist > 0)
         & (jnp.arange(m)[None, :] != jnp.arange(m)[:, None])
     )
+    # dist is nan off the route: divide only where coming (finite gradients)
+    dist = jnp.where(coming, dist, 0.0)
     eta = jnp.where(coming, dist / jnp.maximum(state.speed[None, :], 1.0), jnp.inf)
     soonest = jnp.min(eta, axis=1)
     legs_to_exit = (route_destination[state.route] - origin) % g
