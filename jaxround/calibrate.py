@@ -20,7 +20,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -86,7 +86,6 @@ class Problem:
     n_slots: int
     n_runs: int
     survey: Survey
-    evaluations: list[int] = field(default_factory=lambda: [0])
 
     @property
     def sim_seconds_per_candidate(self) -> float:
