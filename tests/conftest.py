@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import copy
+from collections.abc import Iterator
 from importlib import resources
+from pathlib import Path
 from typing import Any
 
 import jax
@@ -47,3 +50,24 @@ def tree_equal(a: Any, b: Any) -> bool:
         np.array_equal(np.asarray(x), np.asarray(y), equal_nan=True)
         for x, y in zip(la, lb, strict=True)
     )
+
+
+@contextlib.contextmanager
+def quick_compilation(cache_dir: Path) -> Iterator[None]:
+    """Compile with few optimisations, into a persistent cache; restore after.
+
+    For test modules whose time goes into compiling large programs (PPO, APG,
+    gradients) rather than running them.
+    """
+    from jax.experimental.compilation_cache import compilation_cache as cc
+
+    old_dir = jax.config.jax_compilation_cache_dir
+    old_opt = jax.config.values["jax_disable_most_optimizations"]
+    jax.config.update("jax_compilation_cache_dir", str(cache_dir))
+    jax.config.update("jax_disable_most_optimizations", True)
+    try:
+        yield
+    finally:
+        jax.config.update("jax_compilation_cache_dir", old_dir)
+        jax.config.update("jax_disable_most_optimizations", old_opt)
+        cc.reset_cache()

@@ -32,7 +32,7 @@ from agents.export import load_policy, load_policy_numpy
 from agents.training import compiled_trainer, csv_columns, load_run_config, read_csv
 from jaxround.cli import main
 from jaxround.config import ConfigError
-from tests.test_ppo import quick_compilation
+from tests.conftest import quick_compilation
 
 #: The tiny run: milan's network, 9 vehicles in 20 s, 10 s episodes (20 steps),
 #: 8 slots, 4 roundabouts, windows of 5 steps, 4 updates.

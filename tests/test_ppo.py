@@ -11,7 +11,6 @@ programs run in milliseconds either way) into a persistent cache shared with
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import subprocess
@@ -37,7 +36,7 @@ from agents.export import (
 from agents.losses import Batch, compute_gae, ppo_loss
 from agents.ppo import Trainer
 from jaxround.config import ConfigError
-from tests.conftest import tree_equal
+from tests.conftest import quick_compilation, tree_equal
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The tiny training run of the tests: milan's network, 9 vehicles in 20 s,
@@ -59,23 +58,6 @@ TINY = dict(
 
 def tiny_config(**changes: Any) -> PPOConfig:
     return PPOConfig(**TINY).replace(**changes)
-
-
-@contextlib.contextmanager
-def quick_compilation(cache_dir: Path) -> Iterator[None]:
-    """Compile with few optimisations, into a persistent cache; restore after."""
-    from jax.experimental.compilation_cache import compilation_cache as cc
-
-    old_dir = jax.config.jax_compilation_cache_dir
-    old_opt = jax.config.values["jax_disable_most_optimizations"]
-    jax.config.update("jax_compilation_cache_dir", str(cache_dir))
-    jax.config.update("jax_disable_most_optimizations", True)
-    try:
-        yield
-    finally:
-        jax.config.update("jax_compilation_cache_dir", old_dir)
-        jax.config.update("jax_disable_most_optimizations", old_opt)
-        cc.reset_cache()
 
 
 @pytest.fixture(scope="module", autouse=True)
