@@ -1,45 +1,74 @@
 """Gradients through the dynamics: finite, right (finite differences), and
-the relaxed dynamics converge to the exact ones as the temperature goes to 0."""
+the relaxed dynamics converge to the exact ones as the temperature goes to 0.
+
+The programs here are compiled with few optimisations (`quick_compilation`):
+compiling the backward pass takes most of this module's time.
+"""
 
 from __future__ import annotations
+
+from collections.abc import Iterator
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxround.env import make
-from jaxround.rollout import make_episode_runner
+from jaxround.env import RoundaboutEnv, make
+from jaxround.rollout import make_episode_runner, uncontrolled_policy
 from jaxround.schedule import make_schedule
+from jaxround.state import EnvParams, EnvState
 from jaxround.survey import CALIBRATABLE, measured_rollout
+from tests.conftest import quick_compilation
 
 #: Steps of the window the gradients are taken over (10 s).
 WINDOW = 20
+#: Consecutive states whose single next step is checked for the gap parameters.
+GATE_STEPS = 40
+#: The gap parameters act only through the entry's gap acceptance.
+GAP_PARAMS = ("jm_timegap_minor", "impatience")
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _quick_compilation(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    with quick_compilation(tmp_path_factory.getbasetemp() / "xla_cache"):
+        yield
 
 
 @pytest.fixture(scope="module")
-def window():
-    """A busy state after 5 minutes of the default scenario, no more
-    departures, and the window's metric as a function of the driver numbers."""
+def busy() -> tuple[RoundaboutEnv, EnvParams, EnvState, jax.Array]:
+    """A busy state after 5 minutes of the default scenario, and the driver
+    numbers as x0 (7,)."""
     env, params = make("milan", max_vehicles=32)
     sched = env.schedule_from_numpy(make_schedule(env.cfg, seed=0))
     state = make_episode_runner(env, n_steps=600)(params, sched, jax.random.PRNGKey(0))
+    x0 = jnp.array([float(getattr(params, k)) for k in CALIBRATABLE], jnp.float32)
+    return env, params, state, x0
+
+
+def with_drivers(params: EnvParams, x: jax.Array, temperature: jax.Array) -> EnvParams:
+    """`params` with the CALIBRATABLE numbers `x` (7,) and a temperature."""
+    fields = {k: x[i] for i, k in enumerate(CALIBRATABLE)}
+    return params.replace(relax_temperature=temperature, **fields)
+
+
+@pytest.fixture(scope="module")
+def window(busy):
+    """The window's metric as a function of the driver numbers, with no more
+    departures (insertion is not relaxed)."""
+    env, params, state, x0 = busy
     later = jnp.where(state.inserted, state.schedule.depart_s, 1e9)
     state = state.replace(schedule=state.schedule.replace(depart_s=later))
     obs = env.observation(state, params)
 
     def metric(x: jax.Array, temperature: jax.Array) -> jax.Array:
-        p = params.replace(
-            relax_temperature=temperature,
-            **{k: x[i] for i, k in enumerate(CALIBRATABLE)},
-        )
+        p = with_drivers(params, x, temperature)
         end, queues, in_network = measured_rollout(
             env, p, obs, state, WINDOW, remat=False
         )
         co2_g = (jnp.sum(end.trip_co2_mg) + jnp.sum(end.co2_mg)) / 1000.0
         return jnp.sum(in_network) * env.dt + 10 * jnp.sum(queues) * env.dt + co2_g
 
-    x0 = jnp.array([float(getattr(params, k)) for k in CALIBRATABLE], jnp.float32)
     return int(state.active.sum()), x0, jax.jit(metric), jax.jit(jax.grad(metric))
 
 
@@ -76,3 +105,54 @@ def test_gradients_stay_finite_at_zero_temperature(window) -> None:
     g = np.asarray(grad(x0, jnp.float32(0.0)))
     assert np.all(np.isfinite(g))
     assert abs(g[CALIBRATABLE.index("accel")]) > 0  # speeds still carry gradients
+
+
+def test_gap_parameters_match_finite_differences_where_the_gate_is_smooth(
+    busy,
+) -> None:
+    """jm_timegap_minor and impatience act only where a vehicle weighs a gap,
+    and the window above rarely holds one near its threshold. Here each of
+    GATE_STEPS consecutive states is stepped once at temperature 1 s; where
+    the step's outcome is smooth in the parameter (central differences with h
+    and 2h agree within 1%) and the parameter acts, the gradient must agree
+    with them within 5%, and both parameters must act somewhere."""
+    env, params, state, x0 = busy
+    policy = uncontrolled_policy(env)
+    key = jax.random.PRNGKey(2)
+
+    def exact_step(s: EnvState, k: jax.Array) -> tuple[EnvState, EnvState]:
+        obs = env.observation(s, params)
+        _, nxt, *_ = env.step_env(k, s, policy(obs, s, k), params)
+        return nxt, s
+
+    keys = jax.random.split(jax.random.PRNGKey(1), GATE_STEPS)
+    _, states = jax.jit(lambda s: jax.lax.scan(exact_step, s, keys))(state)
+
+    def outcome(x: jax.Array, s: EnvState) -> jax.Array:
+        p = with_drivers(params, x, jnp.float32(1.0))
+        obs = env.observation(s, p)
+        _, nxt, *_ = env.step_env(key, s, policy(obs, s, key), p)
+        return jnp.sum(nxt.speed) + jnp.sum(nxt.pos * nxt.active)
+
+    grads = np.asarray(jax.jit(jax.vmap(jax.grad(outcome), (None, 0)))(x0, states))
+    outcomes = jax.jit(jax.vmap(outcome, (None, 0)))
+    assert np.all(np.isfinite(grads))
+
+    def central(i: int, rel: float) -> np.ndarray:
+        e = jnp.zeros_like(x0).at[i].set(rel * float(x0[i]))
+        diff = np.asarray(outcomes(x0 + e, states)) - np.asarray(
+            outcomes(x0 - e, states)
+        )
+        return diff / (2 * float(e[i]))
+
+    for name in GAP_PARAMS:
+        i = CALIBRATABLE.index(name)
+        fd, fd2 = central(i, 1e-2), central(i, 2e-2)
+        smooth = np.abs(fd - fd2) <= 0.01 * np.abs(fd)
+        acts = np.abs(fd) > 1e-2
+        checked = np.nonzero(smooth & acts)[0]
+        assert checked.size >= 1, (name, fd.tolist(), fd2.tolist())
+        g = grads[checked, i]
+        assert np.all(np.abs(g - fd[checked]) <= 0.05 * np.abs(fd[checked])), (
+            name, checked.tolist(), g.tolist(), fd[checked].tolist(),
+        )  # fmt: skip
