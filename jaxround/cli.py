@@ -470,6 +470,8 @@ def cmd_calibrate(args: argparse.Namespace) -> None:
                 errs = ", ".join(f"{k} {v:.1%}" for k, v in fit[where].items()
                                  if not k.endswith("_abs"))  # fmt: skip
                 print(f"  {where.replace('_', ' ')}: {errs}")
+    print(f"chosen: {result['chosen']} (lowest loss); written to hv_vtype.xml, "
+          "fitted.yaml")  # fmt: skip
     print(f"wrote {out}/calibration.json, hv_vtype.xml, fitted.yaml, calibration.png")
 
 
@@ -668,7 +670,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser(
         "calibrate",
-        help="fit human-driver parameters to a survey by gradients (and black box)",
+        help="fit human-driver parameters to a survey, by gradients and by a black "
+        "box; the better fit is written",
     )
     common(p)
     p.add_argument("--targets", type=Path, required=True, help="from jaxround measure")
