@@ -463,15 +463,17 @@ def cmd_calibrate(args: argparse.Namespace) -> None:
         values = ", ".join(f"{k}={v:.4g}" for k, v in fit["values"].items())
         print(f"{name}: {values}")
         hours = fit["sim_s"] / 3600
-        print(f"  loss {fit['loss_exact']:.4g} (exact dynamics), "
+        sumo = f", {fit['sumo_loss']:.4g} in SUMO" if "sumo_loss" in fit else ""
+        print(f"  loss {fit['loss_exact']:.4g} (exact dynamics){sumo}, "
               f"{hours:.1f} simulated h, {fit['wall_s']:.0f} s wall")  # fmt: skip
         for where in ("param_errors", "jax_errors", "sumo_errors"):
             if where in fit:
                 errs = ", ".join(f"{k} {v:.1%}" for k, v in fit[where].items()
                                  if not k.endswith("_abs"))  # fmt: skip
                 print(f"  {where.replace('_', ' ')}: {errs}")
-    print(f"chosen: {result['chosen']} (lowest loss); written to hv_vtype.xml, "
-          "fitted.yaml")  # fmt: skip
+    where = "in SUMO" if result["chosen_by"] == "sumo_loss" else "in JAX"
+    print(f"chosen: {result['chosen']} (lowest loss {where}); written to "
+          "hv_vtype.xml, fitted.yaml")  # fmt: skip
     print(f"wrote {out}/calibration.json, hv_vtype.xml, fitted.yaml, calibration.png")
 
 

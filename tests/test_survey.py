@@ -3,6 +3,7 @@ files round-trip, bad files and arguments get clear errors."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -10,7 +11,7 @@ import numpy as np
 import pytest
 import yaml
 
-from jaxround.calibrate import parse_param_names
+from jaxround.calibrate import parse_param_names, survey_loss
 from jaxround.cli import main
 from jaxround.config import ConfigError
 from jaxround.env import make
@@ -40,6 +41,14 @@ def test_jax_survey_matches_sumo(surveys) -> None:
     rel = abs(jax.queue_mean_veh.mean() - sumo.queue_mean_veh.mean())
     assert rel <= 0.1 * sumo.queue_mean_veh.mean()
     assert np.abs(jax.queue_max_veh - sumo.queue_max_veh).max() <= 2.0
+
+
+@pytest.mark.sumo
+def test_survey_loss_is_zero_on_the_targets_and_grows_with_the_error(surveys) -> None:
+    _, sumo, jax = surveys
+    assert survey_loss(sumo, sumo) == 0.0
+    doubled = dataclasses.replace(sumo, queue_mean_veh=2 * sumo.queue_mean_veh)
+    assert 0.0 < survey_loss(jax, sumo) < survey_loss(doubled, sumo)
 
 
 @pytest.mark.sumo
