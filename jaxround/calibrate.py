@@ -314,7 +314,7 @@ def run_calibration(
       and "chosen": the fit written below, the one with the lowest loss in the
       SUMO re-run ("chosen_by": "sumo_loss"), or in JAX without it;
     - hv_vtype.xml: the human drivers' SUMO vType with the chosen values;
-    - fitted.yaml: the scenario with the fitted values (for `measure`, `sumo`);
+    - fitted.yaml: the scenario with the chosen values (for `measure`, `sumo`);
     - calibration.png: loss against simulated seconds for both methods.
     """
     from jaxround.env import make
