@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from agents import networks
 from jaxround.config import ConfigError
 from jaxround.env import make
 from jaxround.state import EnvParams, EnvState
@@ -196,6 +197,25 @@ class BatchTrainer:
             jnp.any(done), with_reset, lambda carry: carry, (obs, new_state)
         )
         return obs, state, reward, done, info
+
+    def fresh_start(self, key: jax.Array) -> dict[str, Any]:
+        """The fields every runner starts from: fresh parameters of the
+        subclass's `network`, its `optimizer`'s state, B freshly reset
+        roundabouts (obs, env_state), zero returns, a key, update 0."""
+        k_net, k_env, k_run = jax.random.split(key, 3)
+        params = networks.init_params(
+            self.network, k_net, self.obs_size, self.config.max_vehicles
+        )
+        obs, env_state = self.reset_envs(k_env)
+        return {
+            "params": params,
+            "opt_state": self.optimizer.init(params),
+            "env_state": env_state,
+            "obs": obs,
+            "episode_return": self.shard(jnp.zeros(obs.shape[:-1], jnp.float32)),
+            "key": k_run,
+            "update": jnp.int32(0),
+        }
 
     # ------------------------------------------------------------------ runs
 

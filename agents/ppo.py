@@ -136,21 +136,7 @@ class Trainer(BatchTrainer):
 
     def init(self, key: jax.Array) -> RunnerState:
         """Fresh parameters and B freshly reset roundabouts."""
-        cfg = self.config
-        k_net, k_env, k_run = jax.random.split(key, 3)
-        params = networks.init_params(
-            self.network, k_net, self.obs_size, cfg.max_vehicles
-        )
-        obs, env_state = self.reset_envs(k_env)
-        return RunnerState(
-            params=params,
-            opt_state=self.optimizer.init(params),
-            env_state=env_state,
-            obs=obs,
-            episode_return=self.shard(jnp.zeros(obs.shape[:-1], jnp.float32)),
-            key=k_run,
-            update=jnp.int32(0),
-        )
+        return RunnerState(**self.fresh_start(key))
 
     def rollout(self, runner: RunnerState) -> tuple[RunnerState, Transition]:
         """`n_steps` env steps of all roundabouts; Transition leaves are (T, B, ...)."""
