@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+from jax import lax
 
 from jaxround import idm
 from jaxround.junction import brake_gap
@@ -26,7 +27,7 @@ def insertion_speed(
     n_substeps: int,
     iterations: int = 12,
 ) -> jax.Array:
-    """SUMO's MSCFModel_IDM::insertionFollowSpeed, its recursion unrolled.
+    """SUMO's MSCFModel_IDM::insertionFollowSpeed, its recursion as a loop.
 
     Args:
         v: (G,) the speed to start from.
@@ -46,8 +47,8 @@ def insertion_speed(
             p.min_gap, p.delta, dt, n_substeps,
         )  # fmt: skip
 
-    speed, done = v, jnp.zeros_like(v, dtype=bool)
-    for _ in range(iterations):
+    def iterate(carry: tuple[jax.Array, jax.Array, jax.Array]):
+        i, speed, done = carry
         s_star = jnp.maximum(
             0.0, speed * p.tau + speed * (speed - v_leader) / two_sqrt_ab
         )
@@ -55,9 +56,17 @@ def insertion_speed(
         s2 = follow(speed)
         s3 = follow(s2)
         settle = s2 - s3 < dt
-        speed = jnp.where(done | ok, speed, s2)
-        done = done | ok | settle
-    return speed
+        return i + 1, jnp.where(done | ok, speed, s2), done | ok | settle
+
+    # a loop that stops once every speed is settled, not an unrolled one: the
+    # step compiles much faster, and later iterations would change nothing
+    # (insertion carries no gradient, see `RoundaboutEnv._insert`)
+    def more(carry: tuple[jax.Array, jax.Array, jax.Array]) -> jax.Array:
+        i, _, done = carry
+        return (i < iterations) & ~jnp.all(done)
+
+    done = jnp.zeros_like(v, dtype=bool)
+    return lax.while_loop(more, iterate, (0, v, done))[1]
 
 
 def insertion_stop_speed(
@@ -83,12 +92,20 @@ def insertion_stop_speed(
         (G,) speed.
     """
     p = params
-    speed = v
-    for _ in range(iterations):
+
+    def iterate(carry: tuple[jax.Array, jax.Array, jax.Array]):
+        i, speed, _ = carry
         reach = brake_gap(speed, p.decel, p.tau, dt) + p.min_gap
         too_fast = reach > seen - STOP_OFFSET
         s2 = idm.idm_v(
             speed, 0.0, seen, v0, p.accel, p.decel, p.tau, 0.0, p.delta, dt, n_substeps
         )
-        speed = jnp.where(too_fast, jnp.minimum(s2, speed), speed)
-    return speed
+        lowered = jnp.where(too_fast, jnp.minimum(s2, speed), speed)
+        return i + 1, lowered, jnp.any(lowered != speed)
+
+    # until no speed changes (a fixed point: later iterations change nothing)
+    def more(carry: tuple[jax.Array, jax.Array, jax.Array]) -> jax.Array:
+        i, _, changed = carry
+        return (i < iterations) & changed
+
+    return lax.while_loop(more, iterate, (0, v, jnp.bool_(True)))[1]
