@@ -86,7 +86,7 @@ def link_leader_speed(
     dt: float,
     n_substeps: int,
     action_step: float,
-    km_fixed: int | None = None,
+    km_fixed: int | jax.Array | None = None,
 ) -> tuple[jax.Array, jax.Array]:
     """The speed the link leaders at one merge allow (SUMO's checkLinkLeader).
 
@@ -300,13 +300,21 @@ def planned_speed(
     ring_cap = jnp.minimum(
         ring_cap, jnp.min(jnp.where(prev_l, f_k[:, :, None], jnp.inf), 1)
     )
-    vl_k = [jnp.full(m, jnp.inf)] * starts.shape[1]
-    for kk in net.merge_positions:  # only lanes that merge can have link leaders
-        vl_k[kk], _ = link_leader_speed(
+
+    def link_leaders_at(kk: jax.Array) -> jax.Array:  # the merge at route lane kk
+        v, _ = link_leader_speed(
             net, p, route, pos, speed, v_lane, active, (seen > 0) & (kk == 1),
             v_wait, dt, n_substeps, action_step, km_fixed=kk,
         )  # fmt: skip
-    vl_k = jnp.stack(vl_k, 1)  # (M, K) link leaders where lane k merges
+        return v
+
+    # only lanes that merge can have link leaders; one vmapped program for
+    # all of them (not one copy per merge: the step compiles faster)
+    merges = jnp.asarray(net.merge_positions, jnp.int32)
+    vl_k = jnp.full((m, starts.shape[1]), jnp.inf)
+    if merges.size:
+        vl_k = vl_k.at[:, merges].set(jax.vmap(link_leaders_at, out_axes=1)(merges))
+    # vl_k (M, K): the link leaders' speed where lane k merges
     m_before = starts[:, :, None] < c3 - 1e-3
     v_pre = jnp.minimum(
         v_pre, jnp.min(jnp.where(m_before, vl_k[:, :, None], jnp.inf), 1)

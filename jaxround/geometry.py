@@ -175,7 +175,7 @@ def link_leaders(
     active: jax.Array,
     length: jax.Array,
     min_gap: jax.Array,
-    km_fixed: int | None = None,
+    km_fixed: int | jax.Array | None = None,
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Vehicles on the lane that merges with each vehicle's next merging lane.
 
