@@ -71,3 +71,26 @@ def quick_compilation(cache_dir: Path) -> Iterator[None]:
         jax.config.update("jax_compilation_cache_dir", old_dir)
         jax.config.update("jax_disable_most_optimizations", old_opt)
         cc.reset_cache()
+
+
+@pytest.fixture(autouse=True)
+def _private_compilation_cache(
+    tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch
+) -> Iterator[None]:
+    """Keep the tests' XLA cache out of the user's home, and contained to a test.
+
+    The CLI and the notebooks keep compiled programs in
+    ``$XDG_CACHE_HOME/jaxround/xla`` (`agents.training.enable_compilation_cache`);
+    under the tests that folder is a temporary one (kernels and subprocesses
+    inherit it), so a run neither writes into the user's cache nor depends on
+    what an earlier run left there. A test that turns the cache on in this
+    process has it turned back off afterwards.
+    """
+    from jax.experimental.compilation_cache import compilation_cache as cc
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path_factory.getbasetemp() / "cache"))
+    before = jax.config.jax_compilation_cache_dir
+    yield
+    if jax.config.jax_compilation_cache_dir != before:
+        jax.config.update("jax_compilation_cache_dir", before)
+        cc.reset_cache()
