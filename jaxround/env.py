@@ -38,6 +38,52 @@ SHARED_DRIVER_FIELDS = (
 )  # fmt: skip
 
 
+def sorted_uniform(key: jax.Array, n: int, horizon: jax.Array) -> jax.Array:
+    """float (n,): n uniform times on [0, horizon), sorted, without a sort.
+
+    The order statistics of n uniforms are distributed as the partial sums
+    of n + 1 exponential gaps divided by their total; `cummax` keeps them
+    exactly non-decreasing under float rounding.
+    """
+    sums = jnp.cumsum(jax.random.exponential(key, (n + 1,)))
+    t = jax.lax.cummax(horizon * (sums[:n] / sums[n]))
+    return jnp.minimum(t, jnp.nextafter(jnp.float32(horizon), jnp.float32(0.0)))
+
+
+def inverse_cdf(key: jax.Array, weights: jax.Array) -> jax.Array:
+    """int (...): an index into the last axis of `weights` (..., G) drawn with
+    those (unnormalised, non-negative) weights; a zero weight is never drawn."""
+    cdf = jnp.cumsum(weights, axis=-1)
+    total = cdf[..., -1]
+    u = jax.random.uniform(key, total.shape) * total
+    u = jnp.minimum(u, jnp.nextafter(total, jnp.zeros_like(total)))  # u < total
+    return jnp.sum(cdf <= u[..., None], axis=-1)  # the first index with cdf > u
+
+
+def smallest_k(key: jax.Array, n: int, k: jax.Array) -> jax.Array:
+    """bool (n,): k of n items chosen uniformly at random, without a sort.
+
+    The items with the k smallest of n random 32-bit keys (ties by index):
+    the k-th smallest key is found by a binary search over the key values.
+    For one `key` the chosen set grows with k (the AVs at 10% are AVs at 20%).
+    """
+    bits = jax.random.bits(key, (n,), jnp.uint32)
+
+    def halve(_: int, lo_hi: tuple[jax.Array, jax.Array]):
+        lo, hi = lo_hi
+        mid = lo + (hi - lo) // 2
+        enough = jnp.sum(bits <= mid) >= k
+        return jnp.where(enough, lo, mid + 1), jnp.where(enough, mid, hi)
+
+    cut, _ = jax.lax.fori_loop(
+        0, 32, halve, (jnp.uint32(0), jnp.uint32(np.iinfo(np.uint32).max))
+    )
+    below = bits < cut
+    ties = bits == cut
+    tie_rank = jnp.cumsum(ties) - 1
+    return below | (ties & (tie_rank < k - jnp.sum(below)))
+
+
 class RoundaboutEnv:
     """A single-lane roundabout with M vehicle slots and N scheduled vehicles.
 
@@ -126,23 +172,31 @@ class RoundaboutEnv:
         )
 
     def draw_schedule(self, key: jax.Array, params: EnvParams) -> Schedule:
-        """A random schedule in JAX with the distribution of `make_schedule`."""
+        """A random schedule in JAX with the distribution of `make_schedule`.
+
+        Drawn without sorting (`step` draws one for every roundabout at every
+        step, for its automatic reset): sorted departure times from
+        exponential gaps, origins and destinations by inverse CDF, the AVs as
+        the vehicles with the smallest random keys (a binary search for the
+        cut).
+        """
         n = self.n_schedule
         k_t, k_o, k_d, k_s, k_av = jax.random.split(key, 5)
-        t = jnp.sort(jax.random.uniform(k_t, (n,), maxval=params.duration_s))
+        t = sorted_uniform(k_t, n, params.duration_s)
         depart = jnp.floor(t / self.dt) * self.dt
-        origin = jax.random.categorical(k_o, jnp.log(params.origin_share), shape=(n,))
-        dest = jax.random.categorical(k_d, jnp.log(params.od[origin] + 1e-30))
+        origin = inverse_cdf(
+            k_o, jnp.broadcast_to(params.origin_share, (n, self.n_legs))
+        )
+        dest = inverse_cdf(k_d, params.od[origin])
         z = jax.random.truncated_normal(
             k_s, -0.8 / jnp.maximum(params.speed_dev, 1e-6),
             1.0 / jnp.maximum(params.speed_dev, 1e-6), (n,),
         )  # fmt: skip
         speed_factor = jnp.round((1.0 + params.speed_dev * z) * 1e4) / 1e4
-        rank = jax.random.permutation(k_av, n)
         # round(p * N) with halves up, as `n_av_at`; the margin absorbs float32
-        n_av = jnp.floor(params.penetration * n + 0.5 + 1e-3)
+        n_av = jnp.floor(params.penetration * n + 0.5 + 1e-3).astype(jnp.int32)
         route = jnp.asarray(self.network.route_index)[origin, dest]
-        is_av = rank < n_av
+        is_av = smallest_k(k_av, n, n_av)
         # as `Schedule.class_speed_factors`: AVs scale their deviation from 1
         scale = params.av_speed_dev / jnp.maximum(params.speed_dev, 1e-6)
         av_factor = jnp.round((1.0 + (speed_factor - 1.0) * scale) * 1e4) / 1e4

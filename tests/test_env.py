@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from jaxround.config import ScenarioConfig, config_from_dict, load_config
-from jaxround.env import RoundaboutEnv, make
+from jaxround.env import RoundaboutEnv, inverse_cdf, make, smallest_k, sorted_uniform
 from jaxround.network import CompiledNetwork
 from jaxround.rollout import make_episode_runner, vehicle_records
 from jaxround.schedule import Schedule as NumpySchedule
@@ -652,6 +652,35 @@ def test_draw_schedule_is_well_formed(milan_draws) -> None:
     for o in range(4):
         split = np.bincount(dest[origin == o], minlength=4) / np.sum(origin == o)
         np.testing.assert_allclose(split, cfg.demand.od[o], atol=0.03)
+
+
+def test_sort_free_draws() -> None:
+    """The helpers `draw_schedule` uses instead of sorting."""
+    keys = jax.random.split(jax.random.PRNGKey(7), 200)
+    # k of n: exactly k, at the ends too, nested in k, each item equally likely
+    chosen = jax.jit(jax.vmap(jax.vmap(smallest_k, (None, None, 0)), (0, None, None)),
+                     static_argnums=1)(keys, 50, jnp.arange(51))  # fmt: skip
+    chosen = np.asarray(chosen)  # (200 keys, 51 k, 50 items)
+    np.testing.assert_array_equal(
+        chosen.sum(-1), np.broadcast_to(np.arange(51), (200, 51))
+    )
+    assert np.all(chosen[:, :-1] <= chosen[:, 1:])
+    freq = chosen[:, 10].mean(0)  # 0.2 each; sd 0.028 over 200 keys
+    assert abs(freq.mean() - 0.2) < 1e-6 and freq.min() > 0.08 and freq.max() < 0.32
+    # inverse CDF: the weights' frequencies, never a zero weight
+    w = jnp.array([[0.0, 1.0, 0.0, 3.0], [2.0, 0.0, 2.0, 0.0]])
+    idx = np.asarray(jax.vmap(inverse_cdf, (0, None))(keys, jnp.tile(w, (500, 1))))
+    idx = idx.reshape(200, 500, 2)
+    for row, weights in enumerate(np.asarray(w)):
+        counts = np.bincount(idx[..., row].ravel(), minlength=4) / idx[..., row].size
+        np.testing.assert_allclose(counts, weights / weights.sum(), atol=0.01)
+    # sorted uniform times within the horizon, uniform in distribution
+    t = np.asarray(
+        jax.vmap(sorted_uniform, (0, None, None))(keys, 100, jnp.float32(7.0))
+    )
+    assert np.all(np.diff(t, axis=1) >= 0) and t.min() >= 0 and t.max() < 7.0
+    np.testing.assert_allclose(np.histogram(t, bins=7, range=(0, 7))[0] / t.size,
+                               1 / 7, atol=0.01)  # fmt: skip
 
 
 def test_draw_schedule_within_traced_horizon(small: Small) -> None:
