@@ -20,9 +20,10 @@ import numpy as np
 import pytest
 
 from jaxround.config import ScenarioConfig, config_from_dict, load_config
-from jaxround.env import RoundaboutEnv, inverse_cdf, make, smallest_k, sorted_uniform
+from jaxround.env import RoundaboutEnv, make
 from jaxround.network import CompiledNetwork
 from jaxround.rollout import make_episode_runner, vehicle_records
+from jaxround.sampling import inverse_cdf, smallest_k, sorted_uniform
 from jaxround.schedule import Schedule as NumpySchedule
 from jaxround.schedule import make_schedule, n_av_at
 from jaxround.state import EnvParams, EnvState, Schedule
