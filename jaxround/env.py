@@ -220,9 +220,14 @@ class RoundaboutEnv:
             (obs, state, reward, done, info); reward is float (M,) per slot.
         """
         obs, new_state, reward, done, info = self.step_env(key, state, action, params)
-        obs_reset, state_reset = self.reset(key, params)
-        state = jax.tree.map(lambda r, s: jnp.where(done, r, s), state_reset, new_state)
-        obs = jnp.where(done, obs_reset, obs)
+        # the reset runs only when the episode ended (under `vmap` a cond
+        # computes both branches; `agents.batch.BatchTrainer.env_step` resets
+        # a whole batch only in steps where some episode ended)
+        obs, state = jax.lax.cond(
+            done,
+            lambda: self.reset(key, params),
+            lambda: (obs, new_state),
+        )
         return obs, state, reward, done, info
 
     def step_env(
