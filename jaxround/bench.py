@@ -32,6 +32,11 @@ What is timed, JAX:
 
 Roundabout i of a batch runs ``make_schedule(cfg, seed + i)``: roundabout 0
 runs the very schedule SUMO runs, the others the same demand with other seeds.
+
+Beside the timings: XLA's count of floating-point operations per roundabout-step
+of the compiled program (its cost analysis), and a yardstick timed in the same
+run, the bare IDM ring of `jaxround.bare_ring` at the best batch: what the
+machine gives the simplest car-following step with the same slots.
 """
 
 from __future__ import annotations
@@ -57,6 +62,7 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
+from jaxround.bare_ring import compiled_flops, measure_bare_ring
 from jaxround.config import ScenarioConfig
 from jaxround.env import RoundaboutEnv, make
 from jaxround.schedule import Schedule as NumpySchedule
@@ -121,7 +127,8 @@ def run_benchmark(
 
     Returns:
         ``{"sumo_vehicle_steps_per_s": x, "jax": [{"batch", "vehicle_steps_per_s",
-        "steps_per_s", "compile_s", ...}, ...], "best_ratio_vs_sumo": x,
+        "steps_per_s", "compile_s", "flops_per_roundabout_step", ...}, ...],
+        "best_ratio_vs_sumo": x, "bare_ring": {"vehicle_steps_per_s", ...},
         "slots": [{"max_vehicles", "us_per_step_per_roundabout",
         "us_per_vehicle_step", ...}, ...], "machine": {...}, "sim_seconds": x,
         ...}``; "steps_per_s" counts roundabout-steps (B per batched step).
@@ -208,11 +215,25 @@ def run_benchmark(
     bar.close()
 
     best = max(jax_rows, key=lambda row: row["vehicle_steps_per_s"])
+    note(f"bare ring (yardstick): batch {best['batch']}, M = {max_vehicles}")
+    env = envs[max_vehicles][0]
+    bare = measure_bare_ring(
+        max_vehicles,
+        best["batch"],
+        occupancy=min(max(best["mean_vehicles"] / max_vehicles, 1e-3), 1.0),
+        steps=steps,
+        dt=dt,
+        n_substeps=env.n_substeps,
+        min_timed_s=MIN_TIMED_S,
+        max_repeats=MAX_REPEATS,
+    )
+    bare["ratio_vs_sumo"] = bare["vehicle_steps_per_s"] / sumo_rate
     return {
         "sumo_vehicle_steps_per_s": sumo_rate,
         "jax": jax_rows,
         "best_ratio_vs_sumo": best["vehicle_steps_per_s"] / sumo_rate,
         "best_batch": best["batch"],
+        "bare_ring": bare,
         "slots": slot_rows,
         "machine": {
             **machine_info(sumo.get("sumo_version")),
@@ -269,6 +290,22 @@ def format_benchmark(result: dict[str, Any]) -> str:
         f"Best JAX / SUMO: **{result['best_ratio_vs_sumo']:.2f}x** "
         f"(batch {best['batch']}).",
     ]
+    bare = result.get("bare_ring")
+    if bare:
+        lines += [
+            "",
+            "| yardstick (batch "
+            f"{bare['batch']}) | vehicle-steps/s | vs SUMO | us/step/roundabout "
+            "| flops/step/roundabout | GFLOP/s |",
+            "|---|---:|---:|---:|---:|---:|",
+            _work_row("JAX environment", best),
+            _work_row("bare IDM ring", bare, sumo_rate),
+            "",
+            "Bare IDM ring (`jaxround.bare_ring`): the same slots and occupancy, one "
+            "pairwise leader search and one IDM update per step, nothing else: "
+            "the ceiling of a car-following step on this machine. Flops: XLA's "
+            "cost analysis of the compiled program.",
+        ]
     if result.get("slots"):
         batch = result["slots"][0].get("batch", result.get("slot_batch", "?"))
         lines += [
@@ -426,6 +463,8 @@ _DETAIL_KEYS = (
     "repeats",
     "warmup_run_s",
     "overflow",
+    "flops_per_roundabout_step",
+    "gflops_per_s",
 )
 
 
@@ -523,6 +562,7 @@ def measure_jax(
     vehicle_steps = int(np.sum(occupied, dtype=np.int64))
     wall, cpu = statistics.median(walls), max(statistics.median(cpus), 1e-9)
     roundabout_steps = batch * steps
+    flops = compiled_flops(run)
     return {
         "batch": batch,
         "max_vehicles": env.max_vehicles,
@@ -541,6 +581,8 @@ def measure_jax(
         "repeats": len(walls),
         "warmup_run_s": warmup_s,
         "overflow": int(np.sum(overflow)),
+        "flops_per_roundabout_step": _ratio(flops, roundabout_steps),
+        "gflops_per_s": _ratio(flops, wall * 1e9),
     }
 
 
@@ -627,6 +669,26 @@ def _positive_int(x: Any, name: str) -> int:
     if isinstance(x, bool) or int(x) != x or x < 1:
         raise ValueError(f"{name}: {x!r}, expected a positive integer")
     return int(x)
+
+
+def _work_row(name: str, row: dict[str, Any], sumo_rate: float | None = None) -> str:
+    """A row of the yardstick table: speed and XLA's flop count of one program."""
+    ratio = row.get("ratio_vs_sumo")
+    if ratio is None and sumo_rate:
+        ratio = row["vehicle_steps_per_s"] / sumo_rate
+    flops = row.get("flops_per_roundabout_step")
+    gflops = row.get("gflops_per_s")
+    if gflops is None and flops is not None:
+        gflops = flops / row["us_per_step_per_roundabout"] / 1e3
+    return (
+        f"| {name} | {row['vehicle_steps_per_s']:,.0f} | {_fmt(ratio, '.2f')} "
+        f"| {row['us_per_step_per_roundabout']:,.1f} | {_fmt(flops, ',.0f')} "
+        f"| {_fmt(gflops, '.1f')} |"
+    )
+
+
+def _ratio(x: float | None, y: float) -> float | None:
+    return None if x is None else x / y
 
 
 def _num(x: float) -> str:

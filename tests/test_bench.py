@@ -7,9 +7,12 @@ import math
 from collections.abc import Iterator
 from typing import Any
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxround import bare_ring
 from jaxround.bench import batch_schedules, format_benchmark, run_benchmark
 from jaxround.env import make
 from jaxround.schedule import make_schedule
@@ -93,6 +96,23 @@ def test_throughputs_are_consistent(result: dict[str, Any]) -> None:
 
 
 @pytest.mark.sumo
+def test_flop_counts_and_the_bare_ring_yardstick(result: dict[str, Any]) -> None:
+    for row in result["jax"]:
+        assert _positive(row["flops_per_roundabout_step"])
+        assert _positive(row["gflops_per_s"])
+    bare = result["bare_ring"]
+    assert bare["batch"] == result["best_batch"]
+    assert bare["max_vehicles"] == result["max_vehicles"]
+    assert _positive(bare["vehicle_steps_per_s"])
+    assert bare["ratio_vs_sumo"] == pytest.approx(
+        bare["vehicle_steps_per_s"] / result["sumo_vehicle_steps_per_s"]
+    )
+    # the yardstick is a small part of the environment's step
+    env_flops = result["jax"][0]["flops_per_roundabout_step"]
+    assert 0 < bare["flops_per_roundabout_step"] < env_flops / 5
+
+
+@pytest.mark.sumo
 def test_format_is_a_markdown_table(result: dict[str, Any]) -> None:
     text = format_benchmark(result)
     assert "| SUMO (libsumo) | 1 |" in text
@@ -101,6 +121,7 @@ def test_format_is_a_markdown_table(result: dict[str, Any]) -> None:
     for m in SLOT_SIZES:
         assert f"| {m} |" in text
     assert f"{result['best_ratio_vs_sumo']:.2f}x" in text
+    assert "| bare IDM ring |" in text
 
 
 @pytest.mark.parametrize(
@@ -128,3 +149,25 @@ def test_batch_schedules_stack_the_seeds_schedules() -> None:
             got, want = getattr(batch, name)[i], getattr(one, name)
             assert got.dtype == want.dtype
             np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+
+
+def test_bare_ring_keeps_its_vehicles_apart() -> None:
+    # the yardstick is a working car-following step: from a uniform start no
+    # vehicle drives into the one ahead, and speeds stay within [0, V0]
+    m = 8
+    pos = jnp.arange(m, dtype=jnp.float32) * (bare_ring.RING_M / m)
+    state = (pos, jnp.full(m, 10.0), jnp.arange(m) % 2 == 0)
+    step = jax.jit(lambda s: bare_ring.bare_step(s, 0.5, 2))
+    for _ in range(200):
+        state = step(state)
+        p, v, active = (np.asarray(x) for x in state)
+        on = np.sort(p[active] % bare_ring.RING_M)
+        gaps = np.diff(np.append(on, on[0] + bare_ring.RING_M))
+        assert np.all(gaps >= bare_ring.LENGTH_M), gaps
+        assert np.all((v >= 0) & (v <= bare_ring.V0 + 1e-4))
+        assert np.all(v[~active] == 0)
+
+
+def test_bare_ring_rejects_a_bad_occupancy() -> None:
+    with pytest.raises(ValueError, match="occupancy"):
+        bare_ring.measure_bare_ring(8, 2, occupancy=0.0, steps=2, dt=0.5, n_substeps=2)
