@@ -342,7 +342,7 @@ def read_yaml(source: str | Path, builtins: list[str], what: str) -> Any:
         text = resources.files("configs").joinpath(f"{source}.yaml").read_text()
     else:
         raise ConfigError(
-            f"{source!r} is neither a {what} config file nor a built-in one "
+            f"{source!r}: no {what} config file of that name, nor a built-in one "
             f"({', '.join(builtins)})"
         )
     try:

@@ -109,7 +109,7 @@ def test_bad_values_name_the_field(milan_dict: dict, edit, message: str) -> None
 
 def test_unknown_builtin_and_missing_file(tmp_path: Path) -> None:
     with pytest.raises(
-        ConfigError, match="neither a scenario config file nor a built-in"
+        ConfigError, match="no scenario config file of that name, nor a built-in"
     ):
         load_config("atlantis")
     with pytest.raises(ConfigError, match="does not exist"):

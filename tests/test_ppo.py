@@ -347,7 +347,7 @@ def test_config_errors_name_the_field(changes: dict, message: str) -> None:
 
 
 def test_config_files(tmp_path: Path) -> None:
-    with pytest.raises(ConfigError, match="neither a PPO config file"):
+    with pytest.raises(ConfigError, match="no PPO config file of that name"):
         load_ppo_config("atlantis")
     with pytest.raises(ConfigError, match="does not exist"):
         load_ppo_config(tmp_path / "missing.yaml")
