@@ -24,6 +24,8 @@ import numpy as np
 
 from jaxround import idm
 
+#: (pos, speed, active) of the ring's slots, float (M,), float (M,), bool (M,).
+RingState = tuple[jax.Array, jax.Array, jax.Array]
 #: Ring length (m) and vehicle numbers of the yardstick (SUMO's passenger car,
 #: Table 2's accel/decel/tau, IDM delta 4, 50 km/h).
 RING_M = 100.0
@@ -31,9 +33,7 @@ LENGTH_M = 5.0
 V0, ACCEL, DECEL, TAU, MIN_GAP, DELTA = 13.89, 1.76, 4.5, 1.35, 2.5, 4.0
 
 
-def bare_step(
-    state: tuple[jax.Array, jax.Array, jax.Array], dt: float, n_substeps: int
-) -> tuple[jax.Array, jax.Array, jax.Array]:
+def bare_step(state: RingState, dt: float, n_substeps: int) -> RingState:
     """One step of the bare ring.
 
     Args:
@@ -83,8 +83,10 @@ def measure_bare_ring(
     active = jax.random.uniform(k_on, (batch, max_vehicles)) < occupancy
     speed = jnp.where(active, 5.0, 0.0)
 
-    def window(pos: jax.Array, speed: jax.Array, active: jax.Array):
-        def body(state, _):
+    def window(
+        pos: jax.Array, speed: jax.Array, active: jax.Array
+    ) -> tuple[RingState, jax.Array]:
+        def body(state: RingState, _: None) -> tuple[RingState, jax.Array]:
             state = bare_step(state, dt, n_substeps)
             return state, jnp.sum(state[2], dtype=jnp.int32)
 

@@ -33,10 +33,11 @@ What is timed, JAX:
 Roundabout i of a batch runs ``make_schedule(cfg, seed + i)``: roundabout 0
 runs the very schedule SUMO runs, the others the same demand with other seeds.
 
-Beside the timings: XLA's count of floating-point operations per roundabout-step
-of the compiled program (its cost analysis), and a yardstick timed in the same
-run, the bare IDM ring of `jaxround.bare_ring` at the best batch: what the
-machine gives the simplest car-following step with the same slots.
+Beside the timings: XLA's count of floating-point operations of one
+roundabout-step (the cost analysis of a compiled one-step program), and a
+yardstick timed in the same run, the bare IDM ring of `jaxround.bare_ring` at
+the best batch: what the machine gives the simplest car-following step with
+the same slots.
 """
 
 from __future__ import annotations
