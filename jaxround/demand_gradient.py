@@ -12,9 +12,11 @@ with b the mean of the other episodes of the batch (a leave-one-out
 baseline: it keeps the estimate unbiased and cuts its variance). The
 estimate is averaged over a vmapped batch of episodes.
 
-`surrogate` builds the scalar whose `jax.grad` is this estimate for the
-demand and, at the same time, the pathwise gradient for every continuous
-parameter (the drivers' numbers): one `jax.grad` for both.
+`surrogate` builds the scalar whose `jax.grad` is this estimate.
+`expected_metric` runs the episodes with the params frozen, so that no
+backward pass goes through the dynamics (for whole episodes it would be
+long to compile and large in memory): for the drivers' numbers, use the
+pathwise gradients of `jaxround.survey` over short windows.
 
 Not covered: the number of vehicles and the horizon (`duration_s`). The
 count N is a static shape, and the departure times are uniform on
@@ -79,8 +81,8 @@ def leave_one_out_baseline(values: jax.Array) -> jax.Array:
 
 
 def surrogate(values: jax.Array, log_probs: jax.Array) -> jax.Array:
-    """The scalar whose gradient is the score-function estimate, plus the
-    pathwise gradient of the mean of `values`.
+    """The scalar whose gradient is the score-function estimate (plus the
+    pathwise gradient of the mean of `values`, where they carry one).
 
     Its value is the mean of `values` (the second term is 0 in value, not in
     gradient).
@@ -101,25 +103,20 @@ def expected_metric(
     n_episodes: int,
     policy: Policy | None = None,
     n_steps: int | None = None,
-    pathwise: bool = False,
 ) -> Callable[[EnvParams], jax.Array]:
     """The batch estimate of E[metric] as a function of the params, for `jax.grad`.
 
     Each episode draws its schedule (`draw_schedule`) from its own key and
     runs it without auto-reset (`run_episode`); the keys are fixed, so the
     same params give the same number. ``jax.grad`` of the returned function
-    gives the demand's score-function gradient (`origin_share`, `od`) and,
-    with `pathwise`, the pathwise gradient of the other parameters.
+    gives the demand's score-function gradient (`origin_share`, `od`); the
+    other parameters get 0 (the episodes run with the params frozen).
 
     Args:
         metric: float () of an episode's final state (`mean_crossing_time`,
             `mean_queue`, or one's own).
         n_episodes: the batch B (at least 2).
         n_steps: steps per episode (default: the whole episode).
-        pathwise: also differentiate through the rollouts (the drivers'
-            numbers get their pathwise gradient). Off by default: the demand
-            needs no backward pass through the dynamics, which for whole
-            episodes is long to compile and large in memory.
 
     Returns:
         params -> float (), the mean metric of the B episodes.
@@ -134,10 +131,8 @@ def expected_metric(
         frozen = jax.lax.stop_gradient(params)
         schedules = jax.vmap(env.draw_schedule, in_axes=(0, None))(draw_keys, frozen)
 
-        driven = params if pathwise else frozen
-
         def one(schedule: Schedule, key: jax.Array) -> tuple[jax.Array, jax.Array]:
-            end = run_episode(env, driven, schedule, key, policy, n_steps)
+            end = run_episode(env, frozen, schedule, key, policy, n_steps)
             return metric(end), schedule_log_prob(env, schedule, params)
 
         values, log_probs = jax.vmap(one)(schedules, run_keys)
