@@ -61,22 +61,20 @@ def percent_list(text: str) -> list[float]:
 
 
 def positive_int(text: str) -> int:
-    try:
-        x = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if x < 1:
-        raise argparse.ArgumentTypeError(f"{text}: expected at least 1")
-    return x
+    return _int_at_least(text, 1, "at least 1")
 
 
 def non_negative_int(text: str) -> int:
+    return _int_at_least(text, 0, "0 or more")
+
+
+def _int_at_least(text: str, low: int, expected: str) -> int:
     try:
         x = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if x < 0:
-        raise argparse.ArgumentTypeError(f"{text}: expected 0 or more")
+    if x < low:
+        raise argparse.ArgumentTypeError(f"{text}: expected {expected}")
     return x
 
 
