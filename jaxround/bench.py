@@ -190,6 +190,7 @@ def run_benchmark(
                 "compile_s": r["compile_s"],
                 "ratio_vs_sumo": r["vehicle_steps_per_s"] / sumo_rate,
                 **{k: r[k] for k in _DETAIL_KEYS},
+                **flop_rate(step_flops(envs[max_vehicles][0]), r),
             }
         )
     bar.close()
@@ -229,6 +230,7 @@ def run_benchmark(
         max_repeats=MAX_REPEATS,
     )
     bare["ratio_vs_sumo"] = bare["vehicle_steps_per_s"] / sumo_rate
+    bare.update(flop_rate(bare["flops_per_roundabout_step"], bare))
     return {
         "sumo_vehicle_steps_per_s": sumo_rate,
         "jax": jax_rows,
@@ -300,7 +302,7 @@ def format_benchmark(result: dict[str, Any]) -> str:
             "| flops/step/roundabout | GFLOP/s |",
             "|---|---:|---:|---:|---:|---:|",
             _work_row("JAX environment", best),
-            _work_row("bare IDM ring", bare, sumo_rate),
+            _work_row("bare IDM ring", bare),
             "",
             "Bare IDM ring (`jaxround.bare_ring`): the same slots and occupancy, one "
             "pairwise leader search and one IDM update per step, nothing else: "
@@ -464,8 +466,6 @@ _DETAIL_KEYS = (
     "repeats",
     "warmup_run_s",
     "overflow",
-    "flops_per_roundabout_step",
-    "gflops_per_s",
 )
 
 
@@ -546,6 +546,16 @@ def step_flops(env: RoundaboutEnv) -> float | None:
     return compiled_flops(step.lower(state, params).compile())
 
 
+def flop_rate(flops: float | None, row: dict[str, Any]) -> dict[str, float | None]:
+    """``{"flops_per_roundabout_step", "gflops_per_s"}`` of a timed row (one with
+    "us_per_step_per_roundabout"); both None without a flop count."""
+    us = row["us_per_step_per_roundabout"]
+    return {
+        "flops_per_roundabout_step": flops,
+        "gflops_per_s": None if flops is None else flops / us / 1e3,
+    }
+
+
 def measure_jax(
     env: RoundaboutEnv, params: EnvParams, schedules: Schedule, steps: int
 ) -> dict[str, Any]:
@@ -579,7 +589,6 @@ def measure_jax(
     vehicle_steps = int(np.sum(occupied, dtype=np.int64))
     wall, cpu = statistics.median(walls), max(statistics.median(cpus), 1e-9)
     roundabout_steps = batch * steps
-    flops = step_flops(env)
     return {
         "batch": batch,
         "max_vehicles": env.max_vehicles,
@@ -598,8 +607,6 @@ def measure_jax(
         "repeats": len(walls),
         "warmup_run_s": warmup_s,
         "overflow": int(np.sum(overflow)),
-        "flops_per_roundabout_step": flops,
-        "gflops_per_s": _ratio(flops, 1e9 * wall / roundabout_steps),
     }
 
 
@@ -688,24 +695,15 @@ def _positive_int(x: Any, name: str) -> int:
     return int(x)
 
 
-def _work_row(name: str, row: dict[str, Any], sumo_rate: float | None = None) -> str:
+def _work_row(name: str, row: dict[str, Any]) -> str:
     """A row of the yardstick table: speed and XLA's flop count of one program."""
-    ratio = row.get("ratio_vs_sumo")
-    if ratio is None and sumo_rate:
-        ratio = row["vehicle_steps_per_s"] / sumo_rate
-    flops = row.get("flops_per_roundabout_step")
-    gflops = row.get("gflops_per_s")
-    if gflops is None and flops is not None:
-        gflops = flops / row["us_per_step_per_roundabout"] / 1e3
     return (
-        f"| {name} | {row['vehicle_steps_per_s']:,.0f} | {_fmt(ratio, '.2f')} "
-        f"| {row['us_per_step_per_roundabout']:,.1f} | {_fmt(flops, ',.0f')} "
-        f"| {_fmt(gflops, '.1f')} |"
+        f"| {name} | {row['vehicle_steps_per_s']:,.0f} "
+        f"| {_fmt(row.get('ratio_vs_sumo'), '.2f')} "
+        f"| {row['us_per_step_per_roundabout']:,.1f} "
+        f"| {_fmt(row.get('flops_per_roundabout_step'), ',.0f')} "
+        f"| {_fmt(row.get('gflops_per_s'), '.1f')} |"
     )
-
-
-def _ratio(x: float | None, y: float) -> float | None:
-    return None if x is None else x / y
 
 
 def _num(x: float) -> str:
