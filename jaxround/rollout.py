@@ -16,18 +16,18 @@ from jaxround.state import EnvParams, EnvState, Schedule
 Policy = Callable[[jax.Array, EnvState, jax.Array], jax.Array]
 
 
-#: An acceleration command above any vehicle's accel: the AV drives its IDM.
-FULL_THROTTLE = 1e3
+#: The action of an AV without a command: it drives its own vType.
+NO_COMMAND = float("nan")
 
 
 def uncontrolled_policy(env: RoundaboutEnv) -> Policy:
     """AVs drive their own vType (IDM) as SUMO does without a controller:
-    the command asks for more than the AV's accel, so the IDM speed binds.
-    Human drivers ignore the action."""
+    no speed command (NaN, `jaxround.env.command_from_action`). Human
+    drivers ignore the action."""
 
     def act(obs: jax.Array, state: EnvState, key: jax.Array) -> jax.Array:
         del obs, state, key
-        accel = jnp.full((env.max_vehicles, 1), FULL_THROTTLE, jnp.float32)
+        accel = jnp.full((env.max_vehicles, 1), NO_COMMAND, jnp.float32)
         return jnp.concatenate([accel, jnp.zeros_like(accel)], axis=1)
 
     return act

@@ -8,9 +8,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxround import command as traci
 from jaxround import observe
 from jaxround.config import ConfigError, config_from_dict
-from jaxround.env import av_speed, make
+from jaxround.env import make
 from jaxround.parity import parity_report
 from jaxround.reward import av_reward, reference_pollution
 from jaxround.rollout import make_episode_runner, vehicle_records
@@ -28,22 +29,33 @@ def milan():
 # --------------------------------------------------------------------- bounds
 
 
-def test_av_speed_never_above_idm_and_never_brakes_beyond_decel(milan) -> None:
+def test_commands_clamped_as_sumo_influencer_does(milan) -> None:
     _, params = milan
-    pv = params.for_vehicles(jnp.ones(5, bool))
-    speed = jnp.array([5.0, 5.0, 5.0, 5.0, 0.0])
-    v_idm = jnp.array([6.0, 6.0, 6.0, 1.0, 0.0])
-    accel = jnp.array([1e3, 1.0, -1e3, 1e3, 1.0])
-    v = av_speed(speed, v_idm, accel, pv, DT)
-    decel = float(params.decel)
+    pv = params.for_vehicles(jnp.ones(6, bool))
+    speed = jnp.array([5.0, 5.0, 5.0, 5.0, 0.0, 5.0])
+    accel = jnp.array([1e3, 1.0, -1e3, 1e3, 1.0, jnp.nan])
+    command = traci.commanded_speed(speed, accel, pv, DT)
+    decel, av_accel = float(params.decel), float(params.av_accel)
+    np.testing.assert_allclose(
+        command[:5],
+        [5.0 + av_accel * DT, 5.5, 5.0 - decel * DT, 5.0 + av_accel * DT, 0.5],
+        rtol=1e-6,
+    )
+    assert bool(jnp.isnan(command[5]))  # no command
+    v_safe = jnp.array([6.0, 6.0, 6.0, 1.0, 0.0, 6.0])
+    v_model = jnp.array([5.9, 5.9, 5.9, 1.0, 0.0, 5.9])
+    v_max = traci.max_next_speed(speed, pv, DT)
+    v_min = traci.min_next_speed(speed, pv, DT)
+    v = traci.influence_speed(command, v_model, v_safe=v_safe, v_max=v_max, v_min=v_min)
     np.testing.assert_allclose(
         v,
         [
-            6.0,  # full throttle: the IDM speed binds
+            6.0,  # full throttle: the safe speed binds
             5.5,  # a gentle command is followed
-            5.0 - decel * DT,  # hard braking is bounded by decel
-            1.0,  # an IDM emergency stop stays an emergency stop
-            0.0,  # a standing vehicle whose IDM says stay stays
+            5.0 - decel * DT,  # hard braking is bounded by minNextSpeed
+            5.0 - decel * DT,  # below minNextSpeed the lower clamp wins (last)
+            0.0,  # a standing vehicle whose safe speed says stay stays
+            5.9,  # no command: the model's own speed
         ],
         rtol=1e-6,
     )
