@@ -63,6 +63,42 @@ def run_episode(
     return state
 
 
+def run_until_left(
+    env: RoundaboutEnv,
+    params: EnvParams,
+    schedule: Schedule,
+    key: jax.Array,
+    policy: Policy | None = None,
+    max_steps: int | None = None,
+) -> EnvState:
+    """Run from `schedule` until every scheduled vehicle has left, or
+    `max_steps` (default: the episode length), whichever comes first.
+
+    As `run_episode`, but a `lax.while_loop` that stops early, so parity and
+    evaluation can compare the same vehicles with a simulator that also runs
+    until the last one leaves. Under `vmap` the batch runs until its last
+    member is done. ``state.step`` tells where it stopped.
+    """
+    policy = uncontrolled_policy(env) if policy is None else policy
+    max_steps = env.episode_steps if max_steps is None else max_steps
+    obs, state = env.reset_to_schedule(schedule, params)
+
+    def running(carry: tuple) -> jax.Array:
+        _, state, _ = carry
+        left = jnp.all(~jnp.isnan(state.arrival_s))
+        return (state.step < max_steps) & ~left
+
+    def body(carry: tuple) -> tuple:
+        obs, state, key = carry
+        key, k_act, k_env = jax.random.split(key, 3)
+        action = policy(obs, state, k_act)
+        obs, state, _, _, _ = env.step_env(k_env, state, action, params)
+        return obs, state, key
+
+    _, state, _ = jax.lax.while_loop(running, body, (obs, state, key))
+    return state
+
+
 def make_episode_runner(
     env: RoundaboutEnv, policy: Policy | None = None, n_steps: int | None = None
 ) -> Callable[[EnvParams, Schedule, jax.Array], EnvState]:
