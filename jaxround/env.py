@@ -26,7 +26,7 @@ from jaxround.config import ConfigError, ScenarioConfig, load_config
 from jaxround.geometry import NetArrays
 from jaxround.network import CompiledNetwork, compile_network
 from jaxround.relax import soft_step
-from jaxround.reward import av_reward
+from jaxround.reward import av_reward, system_reward
 from jaxround.sampling import inverse_cdf, smallest_k, sorted_uniform
 from jaxround.schedule import Schedule as NumpySchedule
 from jaxround.state import EnvParams, EnvState, Registrations, Schedule
@@ -282,8 +282,16 @@ class RoundaboutEnv:
         agent = state.active & state.is_av
         _, lane, _ = geometry.locate(net, state.route, state.pos)
         v_desired = jnp.minimum(net.lane_speed[lane] * state.speed_factor, p.max_speed)
-        reward = av_reward(v_next, v_desired, co2_step / self.dt, p)
-        reward = jnp.where(agent, reward, 0.0)
+        if self.cfg.agent.reward == "system":
+            pending = ~state.inserted & (state.schedule.depart_s <= t + 1e-4)
+            n_in_system = jnp.sum(state.active) + jnp.sum(pending)
+            reward = system_reward(
+                n_in_system, co2_step, state.active, agent, p, self.dt,
+                co2_shared=self.cfg.agent.co2_shared,
+            )  # fmt: skip
+        else:
+            reward = av_reward(v_next, v_desired, co2_step / self.dt, p)
+            reward = jnp.where(agent, reward, 0.0)
 
         # 2. arrivals leave their slots
         vid = jnp.where(arrived, state.vid, self.n_schedule)  # out of range: dropped
