@@ -63,6 +63,7 @@ def evaluate_policy(
     penetrations: Sequence[float],
     seeds: Sequence[int],
     max_vehicles: int = 32,
+    keep_records: bool = False,
 ) -> dict[str, Any]:
     """Run the policy and the uncontrolled baseline on every schedule.
 
@@ -72,6 +73,8 @@ def evaluate_policy(
         penetrations: AV shares.
         seeds: schedule seeds.
         max_vehicles: vehicle slots M.
+        keep_records: also return each run's `VehicleRecords` under
+            ``"records": {driver: {penetration: [per seed]}}`` (not JSON).
 
     Returns:
         ``{"scenario", "seeds", "policy": path, "layout": {...}, "results":
@@ -113,15 +116,18 @@ def evaluate_policy(
 
     states = jax.jit(jax.vmap(one))(batch, keys, use_policy)
     per_run: dict[tuple[str, float], list[dict[str, Any]]] = {}
+    records: dict[str, dict[float, list[Any]]] = {d: {} for d in DRIVERS}
     horizon = cfg.demand.duration_s
     for i, (driver, p, _) in enumerate(runs):
         state = jax.tree.map(lambda x, i=i: x[i], states)
-        m = class_metrics(vehicle_records(env, state), horizon)
+        rec = vehicle_records(env, state)
+        records[driver].setdefault(p, []).append(rec)
+        m = class_metrics(rec, horizon)
         collisions = getattr(state, "collisions", None)
         m["collisions"] = None if collisions is None else int(collisions)
         m["slot_overflow"] = int(state.overflow)
         per_run.setdefault((driver, p), []).append(m)
-    return {
+    result = {
         "scenario": cfg.name,
         "seeds": list(seeds),
         "policy": str(policy_path),
@@ -136,6 +142,9 @@ def evaluate_policy(
             for d in DRIVERS
         },
     }
+    if keep_records:
+        result["records"] = records
+    return result
 
 
 #: Columns of the printed comparison.
