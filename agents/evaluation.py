@@ -31,12 +31,16 @@ from jaxround.state import EnvState
 DRIVERS = ("policy", "uncontrolled")
 
 
-def with_observer(cfg: ScenarioConfig, observer: str) -> ScenarioConfig:
-    """`cfg` with the AVs' observer the policy was trained with."""
-    if cfg.agent.observer == observer:
+def with_observer(
+    cfg: ScenarioConfig, observer: str, action: str | None = None
+) -> ScenarioConfig:
+    """`cfg` with the AVs' observer (and action) the policy was trained with."""
+    action = cfg.agent.action if action is None else action
+    if cfg.agent.observer == observer and cfg.agent.action == action:
         return cfg
     d = cfg.to_dict()
     d["agent"]["observer"] = observer
+    d["agent"]["action"] = action
     return config_from_dict(d)
 
 
@@ -89,7 +93,7 @@ def evaluate_policy(
     """
     arrays, layout = load_policy(policy_path)
     check_scenario(layout, cfg)
-    cfg = with_observer(cfg, layout.observer)
+    cfg = with_observer(cfg, layout.observer, layout.action)
     env, params = make(cfg, max_vehicles=max_vehicles)
     obs, _ = jax.eval_shape(env.reset, jax.random.PRNGKey(0), params)
     if obs.shape[-1] != layout.obs_size:
