@@ -251,8 +251,9 @@ def test_policy_drives_avs_as_in_jax(scenario) -> None:
 def test_commanded_speed_bounds() -> None:
     v = np.array([5.0, 5.0, 5.0, 0.1, 0.0])
     a = np.array([1e3, 1.0, -1e3, -1.0, np.nan])
+    # a NaN acceleration is no command (the AV is released to its vType)
     np.testing.assert_allclose(
-        commanded_speed(v, a, 2.6, 4.0, 0.5), [6.3, 5.5, 3.0, 0.0, 0.0]
+        commanded_speed(v, a, 2.6, 4.0, 0.5), [6.3, 5.5, 3.0, 0.0, np.nan]
     )
 
 
