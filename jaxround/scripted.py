@@ -101,6 +101,31 @@ def controller_from_spec(spec: str, dt_s: float = 0.5) -> ScriptedController:
     return ScriptedController(spec=spec, dt_s=dt_s)
 
 
+def rule_and_value(spec: str) -> tuple[int, float]:
+    """The index of the spec's rule in `RULES` and its value, for
+    `scripted_command` (raises as `controller_from_spec`)."""
+    name, value = _parse(spec)
+    return list(RULES).index(name), value
+
+
+def scripted_command(
+    obs: jax.Array, rule: jax.Array, value: jax.Array, dt_s: float
+) -> jax.Array:
+    """The command of the rule with index `rule` (traced: one compiled program
+    serves every controller of a batch), float (M,).
+
+    Args:
+        obs: float (M, 17) rich observation rows.
+        rule: int, index into `RULES` (`rule_and_value`).
+        value: float, the rule's value.
+        dt_s: the simulation step, s.
+    """
+    branches = [
+        lambda o, x, fn=fn: fn(o, x, dt_s).astype(o.dtype) for fn in RULES.values()
+    ]
+    return jax.lax.switch(rule, branches, obs, jnp.asarray(value, obs.dtype))
+
+
 def is_scripted_spec(spec: str) -> bool:
     """Whether `spec` names a scripted controller (rather than, say, a file)."""
     return spec.split(":", 1)[0] in RULES
