@@ -23,14 +23,12 @@ from agents.export import PolicyLayout, check_scenario, load_policy, policy_acti
 from jaxround.config import ScenarioConfig, config_from_dict
 from jaxround.env import make
 from jaxround.metrics import class_metrics, mean_over_runs
-from jaxround.rollout import Policy, run_episode, vehicle_records
+from jaxround.rollout import NO_COMMAND, Policy, run_episode, vehicle_records
 from jaxround.schedule import make_schedule
 from jaxround.state import EnvState
 
 #: The two drivers of the AVs, in the order of the results.
 DRIVERS = ("policy", "uncontrolled")
-#: A command above any AV's accel: the AV drives its own IDM (uncontrolled).
-FULL_THROTTLE = 1e3
 
 
 def with_observer(cfg: ScenarioConfig, observer: str) -> ScenarioConfig:
@@ -45,13 +43,14 @@ def with_observer(cfg: ScenarioConfig, observer: str) -> ScenarioConfig:
 def switched_policy(
     arrays: dict[str, jax.Array], layout: PolicyLayout, use_policy: jax.Array
 ) -> Policy:
-    """The exported policy's deterministic action, or full throttle (uncontrolled)
-    where `use_policy` is false. A `jaxround.rollout.Policy`."""
+    """The exported policy's deterministic action, or no command (uncontrolled:
+    the AVs drive their vType) where `use_policy` is false. A
+    `jaxround.rollout.Policy`."""
 
     def act(obs: jax.Array, state: EnvState, key: jax.Array) -> jax.Array:
         del key
         accel, change = policy_action(arrays, layout, obs, state.active, jnp)
-        accel = jnp.where(use_policy, accel, FULL_THROTTLE)
+        accel = jnp.where(use_policy, accel, NO_COMMAND)
         change = jnp.where(use_policy, change, False)
         return jnp.stack([accel, change.astype(jnp.float32)], axis=-1)
 

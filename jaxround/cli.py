@@ -202,10 +202,14 @@ def cmd_parity(args: argparse.Namespace) -> None:
     from jaxround.parity import parity_report
 
     cfg = load_config(args.config)
-    report = parity_report(
-        cfg, seeds_of(cfg, args.seeds), workers=args.workers,
-        show_progress=not args.no_progress, penetration=args.penetration,
-    )  # fmt: skip
+    try:
+        report = parity_report(
+            cfg, seeds_of(cfg, args.seeds), workers=args.workers,
+            show_progress=not args.no_progress, penetration=args.penetration,
+            controller=args.controller,
+        )  # fmt: skip
+    except ValueError as err:
+        raise UsageError(str(err)) from None
     if args.json:
         print_json(report)
         return
@@ -218,7 +222,7 @@ def cmd_parity(args: argparse.Namespace) -> None:
     who = (
         "HV only"
         if args.penetration == 0
-        else f"{percent_label(args.penetration)}% uncontrolled AVs"
+        else f"{percent_label(args.penetration)}% AVs ({report['controller']})"
     )
     print(f"{cfg.name}, {who}, seeds {report['seeds']}\n")
     print("| metric | JAX | SUMO | rel. error |\n|---|---|---|---|")
@@ -231,6 +235,11 @@ def cmd_parity(args: argparse.Namespace) -> None:
         f"{report['per_vehicle_median_abs_err_s']:.2f} s, "
         f"90th percentile {report['per_vehicle_p90_abs_err_s']:.2f} s, "
         f"exactly equal {100 * report['per_vehicle_exact_share']:.1f}%"
+    )
+    print(
+        f"not arrived by {report['cap_s']:.0f} s: JAX {report['jax_not_arrived']}, "
+        f"SUMO {report['sumo_not_arrived']}; JAX slot overflow "
+        f"{report['jax_slot_overflow']} vehicle-steps"
     )
 
 
@@ -562,7 +571,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seeds", type=positive_int, default=3, help="number of seeds")
     p.add_argument(
         "--penetration", type=percent, default=0.0,
-        help="uncontrolled AVs (their IDM vType), percent (default 0)",
+        help="AVs, percent (default 0)",
+    )  # fmt: skip
+    p.add_argument(
+        "--controller", default=None, metavar="SPEC",
+        help="who drives the AVs in both simulators: uncontrolled (default, "
+        "their vType), accel:A, cruise:V, eco[:B], timed[:H] or a policy file",
     )  # fmt: skip
     sumo_run_options(p)
     p.set_defaults(func=cmd_parity)

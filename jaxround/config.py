@@ -186,6 +186,8 @@ class SimulationConfig:
 
 #: Observers of the AV policy (`jaxround.observe`).
 OBSERVERS = ("paper", "rich")
+#: The AVs' rewards (`jaxround.reward`).
+REWARDS = ("paper", "system")
 
 
 @dataclass(frozen=True)
@@ -193,16 +195,29 @@ class AgentConfig:
     """What an AV's policy sees and is rewarded for (`jaxround.observe`, `.reward`)."""
 
     observer: str = "rich"  # "paper" (Eq. 1, 10 numbers) or "rich" (Eq. 1 + more)
-    speed_weight: float = 1.0  # weight of the desired-velocity term of Eq. 3
-    pollution_weight: float = 1.0  # weight of the pollution term of Eq. 3
-    time_penalty: float = 1.0  # subtracted per step: 1 makes Eq. 3 a cost of 1 - r
+    reward: str = "paper"  # "paper" (Eq. 3) or "system" (time and CO2 of all)
+    speed_weight: float = 1.0  # paper: weight of the desired-velocity term of Eq. 3
+    pollution_weight: float = 1.0  # paper: weight of the pollution term of Eq. 3
+    time_penalty: float = 1.0  # paper: subtracted per step (0: Eq. 3 exactly)
+    time_weight: float = 1.0  # system: cost of one vehicle-second in the system
+    co2_weight: float = 0.5  # system: cost of one gram of CO2
+    co2_shared: bool = True  # system: the CO2 of all vehicles, or the AV's own
 
     def validate(self, where: str) -> None:
         if self.observer not in OBSERVERS:
             raise ConfigError(
                 f"{where}.observer: {self.observer!r}, expected one of {OBSERVERS}"
             )
-        for name in ("speed_weight", "pollution_weight", "time_penalty"):
+        if self.reward not in REWARDS:
+            raise ConfigError(
+                f"{where}.reward: {self.reward!r}, expected one of {REWARDS}"
+            )
+        if not isinstance(self.co2_shared, bool):
+            raise ConfigError(
+                f"{where}.co2_shared: {self.co2_shared!r}, expected true or false"
+            )
+        for name in ("speed_weight", "pollution_weight", "time_penalty",
+                     "time_weight", "co2_weight"):  # fmt: skip
             _non_negative(getattr(self, name), f"{where}.{name}")
         if self.speed_weight + self.pollution_weight <= 0:
             raise ConfigError(f"{where}: speed_weight + pollution_weight must be > 0")
@@ -397,6 +412,10 @@ def _build(tp: Any, value: Any, where: str) -> Any:
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise ConfigError(f"{label}: expected an integer, got {value!r}")
+        return value
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{label}: expected true or false, got {value!r}")
         return value
     if tp is str:
         if not isinstance(value, str):

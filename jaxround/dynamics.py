@@ -13,6 +13,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from jaxround import command as traci
 from jaxround import idm
 from jaxround.geometry import (
     NetArrays,
@@ -141,6 +142,7 @@ def planned_speed(
     n_substeps: int,
     action_step: float,
     debug: bool = False,
+    command: jax.Array | None = None,
 ) -> tuple[jax.Array, Registrations, jax.Array, jax.Array, jax.Array]:
     """Every vehicle's speed at the end of the step, as SUMO's IDM plans it.
 
@@ -149,6 +151,8 @@ def planned_speed(
         active: bool (M,).
         prev_regs: the registrations of the previous step.
         t: time at the start of the step.
+        command: (M,) a TraCI speed command per vehicle for this step (NaN:
+            none), applied where SUMO applies it (`jaxround.command`).
 
     Returns:
         (v_next, regs, blocked, leader, gap): float (M,), this step's
@@ -158,6 +162,15 @@ def planned_speed(
     p = params
     k, lane, pos_on_lane = locate(net, route, pos)
     v_lane = jnp.minimum(net.lane_speed[lane] * speed_factor, p.max_speed)  # (M,)
+    # planMoveInternal's initial v; a speed command replaces it here, so every
+    # look-ahead speed below (registrations, the entry's arrival) starts from it
+    v_max_next = traci.max_next_speed(speed, p, dt)
+    v_min_next = traci.min_next_speed(speed, p, dt)
+    v_start = jnp.minimum(speed + p.accel * dt, v_lane)
+    if command is not None:
+        v_start = traci.influence_speed(
+            command, v_start, v_safe=v_start, v_max=v_max_next, v_min=v_min_next
+        )
 
     # 1. the leader on the vehicle's own lanes (any part of it ahead), and
     #    the link leaders merging in at the next merge
@@ -239,7 +252,7 @@ def planned_speed(
     )  # fmt: skip
     entry_follow = (e_has[:, 0], speed[e_j[:, 0]], e_gap[:, 0], fol)
     plan = entry_approach(net, p, route, pos, speed, speed_factor, v_lane,
-                          jnp.inf, t, dt, appr_cap)  # fmt: skip
+                          jnp.inf, t, dt, appr_cap, v_start=v_start)  # fmt: skip
     plan = plan._replace(leave_speed=plan.arrival_speed)
     plan = plan._replace(
         leave=plan.arrival
@@ -266,14 +279,14 @@ def planned_speed(
         & (brake_gap(speed, p.decel, 0.0, dt) < seen)
         & (beyond_vis | closed_plan)
     )
-    v_chain = jnp.minimum(jnp.minimum(speed + p.accel * dt, v_lane), v_follow)
+    v_chain = jnp.minimum(v_start, v_follow)
     v_chain = jnp.minimum(v_chain, jnp.minimum(v_limits, v_free))
     c_off = net.conflict_offset[route]  # (M, G)
     before = later[:, :, None] & (starts[:, :, None] < c_off[:, None, :])
     lim_before = jnp.min(jnp.where(before, v_limits_k[:, :, None], jnp.inf), axis=1)
     merge_start = pos + to_link
     link_before = merge_start[:, None] < c_off
-    v_pre = jnp.minimum(jnp.minimum(speed + p.accel * dt, v_lane)[:, None], lim_before)
+    v_pre = jnp.minimum(v_start[:, None], lim_before)
     v_pre = jnp.where(link_before, jnp.minimum(v_pre, v_link[:, None]), v_pre)
     prev_start = c_off - net.prev_lane_length[route]
     lead_early = leader_back[:, None] < prev_start
@@ -336,7 +349,7 @@ def planned_speed(
     # executeMove: the entry is tested against this step's registrations
     ego = entry_approach(net, p, route, pos, speed, speed_factor, v_lane,
                          leave_cap, t, dt, appr_cap,
-                         entry_follow)  # fmt: skip
+                         entry_follow, v_start=v_start)  # fmt: skip
     imp_now = jnp.where(can_brake, imp, 1.0)
     # a weight, exactly 0/1 unless the dynamics are relaxed (jaxround.relax)
     blocked_w = jnp.zeros(m).at[cand].max(
@@ -363,4 +376,9 @@ def planned_speed(
     v_next = idm.next_speed(
         speed, v_safe, v_lane, p.accel, p.decel, p.emergency_decel, dt, action_step
     )
+    if command is not None:  # executeMove -> processTraCISpeedControl
+        v_next = traci.influence_speed(
+            command, v_next, v_safe=v_safe, v_max=v_max_next, v_min=v_min_next
+        )
+        v_next = idm.snap_speed(v_next, dt)
     return jnp.where(active, v_next, 0.0), regs, blocked, leader, gap

@@ -20,12 +20,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxround import command as traci
 from jaxround import dynamics, emissions, geometry, idm, insertion, observe
 from jaxround.config import ConfigError, ScenarioConfig, load_config
 from jaxround.geometry import NetArrays
 from jaxround.network import CompiledNetwork, compile_network
 from jaxround.relax import soft_step
-from jaxround.reward import av_reward
+from jaxround.reward import av_reward, system_reward
 from jaxround.sampling import inverse_cdf, smallest_k, sorted_uniform
 from jaxround.schedule import Schedule as NumpySchedule
 from jaxround.state import EnvParams, EnvState, Registrations, Schedule
@@ -236,12 +237,13 @@ class RoundaboutEnv:
         """One step without the automatic reset (see `step`).
 
         Every vehicle plans its speed as SUMO's IDM does with its class's
-        parameters; an AV then drives at ``speed + action[:, 0] * dt``, held
-        between the slowest speed its decel allows and its IDM speed (the
-        cap SUMO's safe speed mode puts on a commanded IDM vehicle): the
-        command can slow an AV, never make it unsafe. ``action[:, 1]`` (lane
-        change) has nothing to act on: every lane of these roundabouts is
-        the only one of its road.
+        parameters. An AV's ``action[:, 0]`` (m/s^2) becomes the speed command
+        ``speed + action * dt`` (`command_from_action`), which SUMO applies
+        while it plans (`jaxround.command`): under speed mode 31 it can slow
+        an AV below its IDM speed, never raise it above its safe speed; a NaN
+        action leaves the AV to its vType. ``action[:, 1]`` (lane change) has
+        nothing to act on: every lane of these roundabouts is the only one of
+        its road.
 
         Returns:
             (obs, state, reward, done, info): reward float (M,) for the AV
@@ -255,14 +257,14 @@ class RoundaboutEnv:
         pv = p.for_vehicles(state.is_av)  # (M,) accel, tau, gap acceptance
         t = state.step.astype(jnp.float32) * self.dt  # time at the start of the step
 
-        # 1. plan (IDM), the AVs' commands within their bounds, move
-        v_idm, regs, _, leader, gap = dynamics.planned_speed(
+        # 1. the AVs' commands, applied as SUMO applies a TraCI speed command
+        #    while every vehicle plans (IDM, junctions); then all move
+        command = command_from_action(state, action, pv, self.dt)
+        v_next, regs, _, leader, gap = dynamics.planned_speed(
             net, pv, state.route, state.pos, state.speed, state.speed_factor,
             state.active, state.waiting_s, state.registrations, t, self.dt,
-            self.n_substeps, self.action_step,
+            self.n_substeps, self.action_step, command=command,
         )  # fmt: skip
-        v_next = av_speed(state.speed, v_idm, action[:, 0], pv, self.dt)
-        v_next = jnp.where(state.active & state.is_av, v_next, v_idm)
         pos_next = state.pos + v_next * self.dt
         route_len = net.route_length[state.route]
         arrived = state.active & (pos_next > route_len - dynamics.ARRIVAL_EPS)
@@ -280,8 +282,16 @@ class RoundaboutEnv:
         agent = state.active & state.is_av
         _, lane, _ = geometry.locate(net, state.route, state.pos)
         v_desired = jnp.minimum(net.lane_speed[lane] * state.speed_factor, p.max_speed)
-        reward = av_reward(v_next, v_desired, co2_step / self.dt, p)
-        reward = jnp.where(agent, reward, 0.0)
+        if self.cfg.agent.reward == "system":
+            pending = ~state.inserted & (state.schedule.depart_s <= t + 1e-4)
+            n_in_system = jnp.sum(state.active) + jnp.sum(pending)
+            reward = system_reward(
+                n_in_system, co2_step, state.active, agent, p, self.dt,
+                co2_shared=self.cfg.agent.co2_shared,
+            )  # fmt: skip
+        else:
+            reward = av_reward(v_next, v_desired, co2_step / self.dt, p)
+            reward = jnp.where(agent, reward, 0.0)
 
         # 2. arrivals leave their slots
         vid = jnp.where(arrived, state.vid, self.n_schedule)  # out of range: dropped
@@ -445,19 +455,24 @@ def queued_per_leg(
     return jnp.sum(on_entry * halting[None, :], axis=1) + jnp.sum(waiting, axis=1)
 
 
-def av_speed(
-    speed: jax.Array, v_idm: jax.Array, accel: jax.Array, params: EnvParams, dt: float
+def command_from_action(
+    state: EnvState, action: jax.Array, params: EnvParams, dt: float
 ) -> jax.Array:
-    """An AV's speed after a commanded acceleration, float (M,).
+    """Each slot's speed command for this step, float (M,), NaN for none.
 
-    The command is bounded by the AV's accel and decel, then the speed is
-    held between the slowest its decel allows and its IDM speed `v_idm`
-    (SUMO's speed mode 31 on an IDM vehicle: an IDM emergency stop below
-    that range stays an emergency stop).
+    An AV's ``action[:, 0]`` is an acceleration (m/s^2), sent as the speed
+    command `jaxround.command.commanded_speed` (what the SUMO controller sends
+    with ``setSpeed``); a NaN acceleration sends none, so the AV drives its
+    vType as without a controller. Human drivers and empty slots get none.
+
+    Args:
+        state: the state at the start of the step.
+        action: float (M, 2) the policy's action.
+        params: the per-vehicle parameters (`EnvParams.for_vehicles`).
+        dt: step length (s).
     """
-    a = jnp.clip(jnp.nan_to_num(accel), -params.decel, params.accel)
-    v_min = jnp.maximum(speed - params.decel * dt, 0.0)
-    return idm.snap_speed(jnp.minimum(jnp.maximum(speed + a * dt, v_min), v_idm), dt)
+    command = traci.commanded_speed(state.speed, action[:, 0], params, dt)
+    return jnp.where(state.active & state.is_av, command, jnp.nan)
 
 
 def check_driver_classes(cfg: ScenarioConfig) -> None:

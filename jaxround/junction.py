@@ -67,17 +67,22 @@ def entry_approach(
     dt: float,
     v_cap: jax.Array | float = jnp.inf,
     leave_follow: tuple | None = None,
+    v_start: jax.Array | None = None,
 ) -> Approach:
     """Arrival at the yield line and leave past the entry, as SUMO registers it.
 
     Args:
         t: time at the start of the step (the state's time).
         leave_cap: (M,) cap on the leave speed from link leaders (inf if none).
+        v_start: (M,) the speed planning starts from (SUMO's initial ``v`` of
+            ``MSVehicle::planMoveInternal``, a TraCI speed command already
+            applied); default ``min(speed + accel*dt, v_lane)``.
     """
     p = params
     a, b = p.accel, p.decel
     leg = net.route_origin[route]
-    v_pre = jnp.minimum(speed + a * dt, v_lane)  # Euler plans with the next speed
+    # Euler plans with the next speed
+    v_pre = jnp.minimum(speed + a * dt, v_lane) if v_start is None else v_start
     seen = net.yield_offset[route] - pos
     link_len = net.entry_internal_length[leg]
     v_link = jnp.minimum(

@@ -1,12 +1,17 @@
-"""JAX against SUMO on the same HV-only departure schedules.
+"""JAX against SUMO on the same departure schedules.
 
 `parity_report` runs every seed's schedule in SUMO (parallel processes) and in
-the JAX environment (one vmapped, jitted batch), and compares the metrics and
-each vehicle's crossing time.
+the JAX environment (one vmapped, jitted batch), with the AVs driven the same
+way in both (`jaxround.drivers`: uncontrolled, a scripted controller or an
+exported policy), and compares the metrics and each vehicle's crossing time.
+Both simulators run until every scheduled vehicle has left, or the same cap
+(the demand horizon plus `sumo_export.runner.DRAIN_S`), reported with the
+vehicles still inside at the cap.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -14,9 +19,16 @@ import jax
 import numpy as np
 
 from jaxround.config import ScenarioConfig
+from jaxround.drivers import (
+    DriverSpec,
+    config_for,
+    jax_driver,
+    parse_driver,
+    sumo_driver,
+)
 from jaxround.env import make
 from jaxround.metrics import class_metrics, mean_over_runs
-from jaxround.rollout import make_episode_runner, vehicle_records
+from jaxround.rollout import run_until_left, vehicle_records
 from jaxround.schedule import make_schedule
 
 COMPARED = ("mean_crossing_time_s", "co2_g_per_veh", "fuel_g_per_veh", "n_arrived")
@@ -27,26 +39,40 @@ def run_jax(
     seeds: Sequence[int],
     penetration: float = 0.0,
     max_vehicles: int = 32,
+    driver: DriverSpec | None = None,
+    cap_s: float | None = None,
 ) -> list[dict[str, Any]]:
-    """Run the schedules of `seeds` in JAX, all seeds in one vmapped batch.
+    """Run the schedules of `seeds` in JAX, all seeds in one vmapped batch,
+    each until its vehicles have left or `cap_s` (default: the episode).
 
     Returns:
-        One ``{"records": VehicleRecords, "overflow": int}`` per seed.
+        One ``{"records": VehicleRecords, "overflow": int, "end_s": float}``
+        per seed.
     """
-    env, params = make(cfg, max_vehicles=max_vehicles)
+    driver = parse_driver(None) if driver is None else driver
+    env, params = make(config_for(cfg, driver), max_vehicles=max_vehicles)
+    policy = jax_driver(env, params, driver)
+    max_steps = None if cap_s is None else int(math.ceil(cap_s / env.dt))
     schedules = [
         env.schedule_from_numpy(make_schedule(cfg, seed=s, penetration=penetration))
         for s in seeds
     ]
     batch = jax.tree.map(lambda *xs: np.stack(xs), *schedules)
-    runner = make_episode_runner(env)
+
+    def one(schedule: Any, key: jax.Array) -> Any:
+        return run_until_left(env, params, schedule, key, policy, max_steps)
+
     keys = jax.random.split(jax.random.PRNGKey(0), len(seeds))
-    states = jax.vmap(runner, in_axes=(None, 0, 0))(params, batch, keys)
+    states = jax.jit(jax.vmap(one))(batch, keys)
     out = []
     for i in range(len(seeds)):
         state = jax.tree.map(lambda x, i=i: x[i], states)
         out.append(
-            {"records": vehicle_records(env, state), "overflow": int(state.overflow)}
+            {
+                "records": vehicle_records(env, state),
+                "overflow": int(state.overflow),
+                "end_s": float(state.step) * env.dt,
+            }
         )
     return out
 
@@ -77,18 +103,28 @@ def parity_report(
     workers: int | None = None,
     show_progress: bool = True,
     penetration: float = 0.0,
+    controller: str | None = None,
 ) -> dict[str, Any]:
     """The `jaxround parity --json` object for the schedules of `seeds`.
 
-    With `penetration` > 0 the AVs drive uncontrolled (their IDM vType) in
-    both simulators.
-    """
-    from sumo_export.runner import run_many
+    Args:
+        controller: the AVs' driver (`jaxround.drivers`); None: uncontrolled
+            (their vType).
 
+    Raises:
+        ValueError: a bad controller spec, before anything runs.
+    """
+    from sumo_export.runner import DRAIN_S, run_many
+
+    driver = parse_driver(controller)
     cfg = cfg.with_overrides(penetration=penetration)
+    cap_s = cfg.demand.duration_s + DRAIN_S
     schedules = [make_schedule(cfg, seed=s, penetration=penetration) for s in seeds]
-    sumo_runs = run_many(cfg, schedules, workers=workers)
-    jax_runs = run_jax(cfg, seeds, penetration=penetration)
+    sumo_runs = run_many(
+        config_for(cfg, driver), schedules, workers=workers,
+        controller=sumo_driver(driver),
+    )  # fmt: skip
+    jax_runs = run_jax(cfg, seeds, penetration=penetration, driver=driver, cap_s=cap_s)
     horizon = cfg.demand.duration_s
     sumo_m = mean_over_runs([class_metrics(r.records, horizon) for r in sumo_runs])
     jax_m = mean_over_runs([class_metrics(r["records"], horizon) for r in jax_runs])
@@ -99,16 +135,25 @@ def parity_report(
         both = np.isfinite(a) & np.isfinite(b)
         errors.append(np.abs(a[both] - b[both]))
     per_vehicle = np.concatenate(errors) if errors else np.zeros(0)
+
+    def left_inside(records: Any) -> int:
+        return int(np.sum(~np.isfinite(records.arrival_s)))
+
     return {
         "scenario": cfg.name,
         "seeds": list(seeds),
         "penetration": penetration,
+        "controller": driver.spec,
         "jax": jax_m,
         "sumo": sumo_m,
         "rel_err": {
             k: relative_error(jax_m["all"][k], sumo_m["all"][k]) for k in COMPARED
         },
         **per_vehicle_stats(per_vehicle),
+        "cap_s": cap_s,
+        "jax_not_arrived": sum(left_inside(r["records"]) for r in jax_runs),
+        "sumo_not_arrived": sum(left_inside(r.records) for r in sumo_runs),
         "jax_slot_overflow": int(sum(r["overflow"] for r in jax_runs)),
         "sumo_collisions": int(sum(r.collisions for r in sumo_runs)),
+        "sumo_teleports": int(sum(r.teleports for r in sumo_runs)),
     }

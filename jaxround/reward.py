@@ -1,4 +1,8 @@
-"""The AVs' reward: Eq. 3 of the paper, per vehicle slot and step.
+"""The AVs' rewards, per vehicle slot and step: the paper's Eq. 3
+(``agent.reward: paper``) and one for what the evaluation measures
+(``agent.reward: system``, `system_reward`).
+
+Eq. 3 (`av_reward`):
 
 Desired-velocity term: the deviation of the AV's speed from its desired speed
 (the limit of its lane), subtracted from the peak allowed deviation (the
@@ -11,8 +15,12 @@ two are weighted, summed and normalised to [0, 1]:
     r   = (w_v r_v + w_p r_p) / (w_v + w_p) - time_penalty
 
 The paper's terms are all non-negative, which pays a vehicle for staying in
-the network longer; `time_penalty` (1 by default) turns the sum into the cost
-``1 - r`` of each step spent in the roundabout, so crossing sooner pays.
+the network longer; `time_penalty` (1 by default, 0 for Eq. 3 exactly) turns
+the sum into the cost ``1 - r`` of each step spent in the roundabout, so
+crossing sooner pays. What Eq. 3 optimises: driving at the desired speed and
+emitting at the rate of a car cruising at it. Its pollution term pays for
+*matching* that rate, not for emitting less: coasting with the fuel cut
+(0 mg/s) scores 0 there, idling (~1.5 g/s) about 0.8.
 """
 
 from __future__ import annotations
@@ -51,3 +59,49 @@ def av_reward(
     w_v, w_p = params.reward_speed_weight, params.reward_pollution_weight
     r = (w_v * r_v + w_p * r_p) / (w_v + w_p)
     return r - params.reward_time_penalty
+
+
+def system_reward(
+    n_in_system: jax.Array,
+    co2_step_mg: jax.Array,
+    active: jax.Array,
+    agent: jax.Array,
+    params: EnvParams,
+    dt: float,
+    co2_shared: bool = True,
+) -> jax.Array:
+    """A reward for what the evaluation measures, per slot, float (M,).
+
+    The time term is the crossing time of Eq. 4 summed over all vehicles:
+    every vehicle in the network or due and waiting to be inserted adds dt
+    to it in this step. It is shared among the AVs acting in this step, so
+    that their rewards add up to minus the system's cost. The CO2 term is
+    either shared the same way (all vehicles' CO2 of the step) or each AV's
+    own::
+
+        r_i = -(w_t * dt * n_in_system + w_c * co2_all_g) / n_agents   (shared)
+        r_i = -w_t * dt * n_in_system / n_agents - w_c * co2_i_g       (own CO2)
+
+    Args:
+        n_in_system: () vehicles in the network or waiting to be inserted at
+            the start of the step.
+        co2_step_mg: (M,) CO2 each slot emitted in the step, mg.
+        active: bool (M,) slots that held a vehicle in the step.
+        agent: bool (M,) slots that held an AV in the step.
+        params: ``reward_time_weight`` (per vehicle-second) and
+            ``reward_co2_weight`` (per g).
+        dt: step length, s.
+        co2_shared: share the CO2 of all vehicles (True) or charge each AV
+            its own.
+
+    Returns:
+        float (M,) the reward of each AV slot, 0 elsewhere.
+    """
+    n_agents = jnp.maximum(jnp.sum(agent), 1)
+    co2_g = jnp.where(active, co2_step_mg, 0.0) / 1000.0
+    time_cost = params.reward_time_weight * dt * n_in_system / n_agents
+    if co2_shared:
+        co2_cost = params.reward_co2_weight * jnp.sum(co2_g) / n_agents
+    else:
+        co2_cost = params.reward_co2_weight * co2_g
+    return jnp.where(agent, -(time_cost + co2_cost), 0.0)

@@ -16,18 +16,18 @@ from jaxround.state import EnvParams, EnvState, Schedule
 Policy = Callable[[jax.Array, EnvState, jax.Array], jax.Array]
 
 
-#: An acceleration command above any vehicle's accel: the AV drives its IDM.
-FULL_THROTTLE = 1e3
+#: The action of an AV without a command: it drives its own vType.
+NO_COMMAND = float("nan")
 
 
 def uncontrolled_policy(env: RoundaboutEnv) -> Policy:
     """AVs drive their own vType (IDM) as SUMO does without a controller:
-    the command asks for more than the AV's accel, so the IDM speed binds.
-    Human drivers ignore the action."""
+    no speed command (NaN, `jaxround.env.command_from_action`). Human
+    drivers ignore the action."""
 
     def act(obs: jax.Array, state: EnvState, key: jax.Array) -> jax.Array:
         del obs, state, key
-        accel = jnp.full((env.max_vehicles, 1), FULL_THROTTLE, jnp.float32)
+        accel = jnp.full((env.max_vehicles, 1), NO_COMMAND, jnp.float32)
         return jnp.concatenate([accel, jnp.zeros_like(accel)], axis=1)
 
     return act
@@ -60,6 +60,42 @@ def run_episode(
         return (obs, state), None
 
     (_, state), _ = jax.lax.scan(body, (obs, state), jax.random.split(key, n_steps))
+    return state
+
+
+def run_until_left(
+    env: RoundaboutEnv,
+    params: EnvParams,
+    schedule: Schedule,
+    key: jax.Array,
+    policy: Policy | None = None,
+    max_steps: int | None = None,
+) -> EnvState:
+    """Run from `schedule` until every scheduled vehicle has left, or
+    `max_steps` (default: the episode length), whichever comes first.
+
+    As `run_episode`, but a `lax.while_loop` that stops early, so parity and
+    evaluation can compare the same vehicles with a simulator that also runs
+    until the last one leaves. Under `vmap` the batch runs until its last
+    member is done. ``state.step`` tells where it stopped.
+    """
+    policy = uncontrolled_policy(env) if policy is None else policy
+    max_steps = env.episode_steps if max_steps is None else max_steps
+    obs, state = env.reset_to_schedule(schedule, params)
+
+    def running(carry: tuple) -> jax.Array:
+        _, state, _ = carry
+        left = jnp.all(~jnp.isnan(state.arrival_s))
+        return (state.step < max_steps) & ~left
+
+    def body(carry: tuple) -> tuple:
+        obs, state, key = carry
+        key, k_act, k_env = jax.random.split(key, 3)
+        action = policy(obs, state, k_act)
+        obs, state, _, _, _ = env.step_env(k_env, state, action, params)
+        return obs, state, key
+
+    _, state, _ = jax.lax.while_loop(running, body, (obs, state, key))
     return state
 
 

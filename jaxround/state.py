@@ -49,6 +49,8 @@ class EnvParams:
         reward_speed_weight: AV reward: weight of the desired-velocity term.
         reward_pollution_weight: AV reward: weight of the pollution term.
         reward_time_penalty: AV reward: subtracted every step in the network.
+        reward_time_weight: system reward: cost of a vehicle-second, per s.
+        reward_co2_weight: system reward: cost of a gram of CO2, per g.
         relax_temperature: 0 runs the exact (SUMO-parity) dynamics; above 0,
             hard decisions become smooth so that gradients flow through them
             (`jaxround.relax`). Margins are divided by it in their own units
@@ -81,6 +83,8 @@ class EnvParams:
     reward_speed_weight: jax.Array
     reward_pollution_weight: jax.Array
     reward_time_penalty: jax.Array
+    reward_time_weight: jax.Array
+    reward_co2_weight: jax.Array
     relax_temperature: jax.Array
 
     @classmethod
@@ -113,6 +117,8 @@ class EnvParams:
             reward_speed_weight=f(cfg.agent.speed_weight),
             reward_pollution_weight=f(cfg.agent.pollution_weight),
             reward_time_penalty=f(cfg.agent.time_penalty),
+            reward_time_weight=f(cfg.agent.time_weight),
+            reward_co2_weight=f(cfg.agent.co2_weight),
             relax_temperature=f(0.0),
         )
 

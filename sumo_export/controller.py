@@ -11,11 +11,12 @@ After every SUMO step the controller
    the policy was trained with (`sumo_export.traffic.SumoObserver`);
 2. runs the policy in NumPy on the occupied slots;
 3. commands each AV ``setSpeed(v + a * dt)``, with ``a`` clipped to the AV's
-   [-decel, accel] and the speed kept at or above ``max(v - decel * dt, 0)``.
-   SUMO's default speed mode 31 stays on: SUMO caps the command at the AV's
-   IDM speed, exactly as `jaxround.env.av_speed` does in JAX.
+   [-decel, accel] and the speed kept at or above ``max(v - decel * dt, 0)``;
+   a NaN ``a`` releases the AV to its vType (``setSpeed(-1)``). SUMO's
+   default speed mode 31 stays on: SUMO applies the command while the AV
+   plans and clamps it by its safe speed, as `jaxround.command` does in JAX.
    (``setAcceleration(a, dt)`` gave the same speeds to the last digit;
-   ``setSpeed`` says what `av_speed` computes. A command holds until
+   ``setSpeed`` says what `commanded_speed` computes. A command holds until
    released with ``setSpeed(-1)``.)
 
 The lane-change decision acts only where the AV's road has more than one
@@ -168,11 +169,16 @@ class PolicyController:
         is_av = (traffic.column("is_av")[:n] > 0.5).tolist()
         commanded = set()
         for vid, av, v, lane_change in zip(traffic.ids, is_av, v_cmd, wants):
-            if av:
-                veh.setSpeed(vid, v)
-                commanded.add(vid)
-                if lane_change:
-                    self._change_lane(libsumo, vid)
+            if not av:
+                continue
+            if v != v:  # NaN: no command, the AV drives its vType
+                if vid in self._commanded:
+                    veh.setSpeed(vid, -1.0)
+                continue
+            veh.setSpeed(vid, v)
+            commanded.add(vid)
+            if lane_change:
+                self._change_lane(libsumo, vid)
         # a command holds until released: an AV that lost its slot drives its IDM
         for vid in traffic.unslotted:
             if vid in self._commanded:
@@ -239,9 +245,10 @@ def commanded_speed(
     """The speed an AV is commanded for the next step, float (n,).
 
     ``v + clip(a, -decel, max_accel) * dt``, at least ``max(v - decel * dt, 0)``
-    (`jaxround.env.av_speed` before SUMO's cap at the IDM speed).
+    (`jaxround.command.commanded_speed`, which the JAX environment applies as
+    SUMO does); NaN where ``a`` is NaN: no command.
     """
-    a = np.clip(np.nan_to_num(accel), -decel, max_accel)
+    a = np.clip(accel, -decel, max_accel)
     return np.maximum(speed + a * dt, np.maximum(speed - decel * dt, 0.0))
 
 

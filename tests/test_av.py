@@ -8,11 +8,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxround import command as traci
 from jaxround import observe
 from jaxround.config import ConfigError, config_from_dict
-from jaxround.env import av_speed, make
+from jaxround.env import make
 from jaxround.parity import parity_report
-from jaxround.reward import av_reward, reference_pollution
+from jaxround.reward import av_reward, reference_pollution, system_reward
 from jaxround.rollout import make_episode_runner, vehicle_records
 from jaxround.schedule import make_schedule
 from tests.conftest import builtin_dict, small_config
@@ -28,22 +29,33 @@ def milan():
 # --------------------------------------------------------------------- bounds
 
 
-def test_av_speed_never_above_idm_and_never_brakes_beyond_decel(milan) -> None:
+def test_commands_clamped_as_sumo_influencer_does(milan) -> None:
     _, params = milan
-    pv = params.for_vehicles(jnp.ones(5, bool))
-    speed = jnp.array([5.0, 5.0, 5.0, 5.0, 0.0])
-    v_idm = jnp.array([6.0, 6.0, 6.0, 1.0, 0.0])
-    accel = jnp.array([1e3, 1.0, -1e3, 1e3, 1.0])
-    v = av_speed(speed, v_idm, accel, pv, DT)
-    decel = float(params.decel)
+    pv = params.for_vehicles(jnp.ones(6, bool))
+    speed = jnp.array([5.0, 5.0, 5.0, 5.0, 0.0, 5.0])
+    accel = jnp.array([1e3, 1.0, -1e3, 1e3, 1.0, jnp.nan])
+    command = traci.commanded_speed(speed, accel, pv, DT)
+    decel, av_accel = float(params.decel), float(params.av_accel)
+    np.testing.assert_allclose(
+        command[:5],
+        [5.0 + av_accel * DT, 5.5, 5.0 - decel * DT, 5.0 + av_accel * DT, 0.5],
+        rtol=1e-6,
+    )
+    assert bool(jnp.isnan(command[5]))  # no command
+    v_safe = jnp.array([6.0, 6.0, 6.0, 1.0, 0.0, 6.0])
+    v_model = jnp.array([5.9, 5.9, 5.9, 1.0, 0.0, 5.9])
+    v_max = traci.max_next_speed(speed, pv, DT)
+    v_min = traci.min_next_speed(speed, pv, DT)
+    v = traci.influence_speed(command, v_model, v_safe=v_safe, v_max=v_max, v_min=v_min)
     np.testing.assert_allclose(
         v,
         [
-            6.0,  # full throttle: the IDM speed binds
+            6.0,  # full throttle: the safe speed binds
             5.5,  # a gentle command is followed
-            5.0 - decel * DT,  # hard braking is bounded by decel
-            1.0,  # an IDM emergency stop stays an emergency stop
-            0.0,  # a standing vehicle whose IDM says stay stays
+            5.0 - decel * DT,  # hard braking is bounded by minNextSpeed
+            5.0 - decel * DT,  # below minNextSpeed the lower clamp wins (last)
+            0.0,  # a standing vehicle whose safe speed says stay stays
+            5.9,  # no command: the model's own speed
         ],
         rtol=1e-6,
     )
@@ -196,3 +208,49 @@ def test_uncontrolled_avs_match_sumo_in_mixed_traffic() -> None:
     assert err["co2_g_per_veh"] < 0.03, err
     assert report["per_vehicle_median_abs_err_s"] <= 1.0
     assert report["sumo_collisions"] == 0
+
+
+# --------------------------------------------------------------------- system
+
+
+def test_system_reward_by_hand(milan) -> None:
+    _, params = milan
+    params = params.replace(
+        reward_time_weight=jnp.float32(2.0), reward_co2_weight=jnp.float32(0.5)
+    )
+    active = jnp.array([True, True, True, False])
+    agent = jnp.array([True, False, True, False])
+    co2_mg = jnp.array([1000.0, 3000.0, 0.0, 9999.0])  # the empty slot's is ignored
+    # 5 vehicles in the system (3 in the network, 2 waiting), dt 0.5 s:
+    # time cost 2 * 0.5 * 5 = 5 shared by 2 AVs; CO2 of all 4 g * 0.5 = 2
+    shared = system_reward(jnp.float32(5.0), co2_mg, active, agent, params, DT)
+    np.testing.assert_allclose(shared, [-3.5, 0.0, -3.5, 0.0], rtol=1e-6)
+    own = system_reward(
+        jnp.float32(5.0), co2_mg, active, agent, params, DT, co2_shared=False
+    )
+    np.testing.assert_allclose(own, [-3.0, 0.0, -2.5, 0.0], rtol=1e-6)
+    # the AVs' rewards add up to minus the system's cost of the step
+    assert float(jnp.sum(shared)) == pytest.approx(-(5.0 + 2.0))
+
+
+def test_system_reward_in_the_env_sums_to_the_crossing_time() -> None:
+    d = builtin_dict("milan")
+    d["demand"]["n_vehicles"] = 40
+    d["demand"]["duration_s"] = 120.0
+    d["simulation"]["penetration"] = 1.0
+    d["agent"] = {"reward": "system", "co2_weight": 0.0, "time_weight": 1.0}
+    env, params = make(config_from_dict(d), episode_s=600.0)
+    sched = env.schedule_from_numpy(make_schedule(env.cfg, seed=3, penetration=1.0))
+    obs, state = env.reset_to_schedule(sched, params)
+
+    def body(state, key):
+        action = jnp.full((env.max_vehicles, 2), jnp.nan)
+        _, state, reward, _, _ = env.step_env(key, state, action, params)
+        return state, jnp.sum(reward)
+
+    keys = jax.random.split(jax.random.PRNGKey(0), env.episode_steps)
+    state, rewards = jax.jit(lambda s: jax.lax.scan(body, s, keys))(state)
+    crossing = np.asarray(state.arrival_s - state.schedule.depart_s)
+    assert np.all(np.isfinite(crossing))  # every vehicle left
+    # minus the summed rewards is the crossing time of Eq. 4 summed
+    assert -float(jnp.sum(rewards)) == pytest.approx(float(crossing.sum()), rel=1e-3)
