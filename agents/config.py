@@ -25,7 +25,9 @@ from typing import Any, ClassVar, TypeVar
 import yaml
 
 from jaxround.config import (
+    ACTIONS,
     OBSERVERS,
+    REWARDS,
     ConfigError,
     ScenarioConfig,
     config_from_dict,
@@ -72,10 +74,12 @@ class TrainerConfig:
             raise ConfigError("penetrations: empty, expected at least one share")
         for i, p in enumerate(c.penetrations):
             _require(0 <= p <= 1, f"penetrations[{i}]", p, "a share in [0, 1]")
-        if c.observer and c.observer not in OBSERVERS:
-            raise ConfigError(
-                f"observer: {c.observer!r}, expected '' or one of {OBSERVERS}"
-            )
+        for name, allowed in (
+            ("observer", OBSERVERS), ("action", ACTIONS), ("reward", REWARDS)
+        ):  # fmt: skip
+            value = getattr(c, name)
+            if value and value not in allowed:
+                raise ConfigError(f"{name}: {value!r}, expected '' or one of {allowed}")
         if c.activation not in ACTIVATIONS:
             raise ConfigError(
                 f"activation: {c.activation!r}, expected one of {ACTIVATIONS}"
@@ -111,13 +115,17 @@ class TrainerConfig:
     # ------------------------------------------------------------ scenario
 
     def base_scenario(self) -> ScenarioConfig:
-        """The scenario as given (full demand), with `observer` applied."""
+        """The scenario as given (full demand), with `observer`, `action` and
+        `reward` applied where they are set."""
         c: Any = self
         cfg = load_scenario(c.scenario)
-        if not c.observer:
+        chosen = {
+            k: getattr(c, k) for k in ("observer", "action", "reward") if getattr(c, k)
+        }
+        if not chosen:
             return cfg
         d = cfg.to_dict()
-        d["agent"]["observer"] = c.observer
+        d["agent"].update(chosen)
         return config_from_dict(d)
 
     def training_scenario(self) -> ScenarioConfig:
@@ -147,6 +155,8 @@ class PPOConfig(TrainerConfig):
     max_vehicles: int = 32  # vehicle slots M per roundabout
     penetrations: tuple[float, ...] = (1.0,)  # AV shares; env i uses entry i % len
     observer: str = ""  # the AVs' observer; empty: the scenario's agent.observer
+    action: str = ""  # what the AVs' action means; empty: the scenario's agent.action
+    reward: str = ""  # the AVs' reward; empty: the scenario's agent.reward
     n_envs: int = 64  # roundabouts stepped side by side (split over devices)
     n_steps: int = 64  # env steps per rollout, per roundabout
     total_env_steps: int = 1_000_000  # env steps over all roundabouts and updates
@@ -220,6 +230,8 @@ class APGConfig(TrainerConfig):
     max_vehicles: int = 32  # vehicle slots M per roundabout
     penetrations: tuple[float, ...] = (1.0,)  # AV shares; env i uses entry i % len
     observer: str = ""  # the AVs' observer; empty: the scenario's agent.observer
+    action: str = ""  # what the AVs' action means; empty: the scenario's agent.action
+    reward: str = ""  # the AVs' reward; empty: the scenario's agent.reward
     relax_temperature: float = 0.5  # training dynamics' smoothness; 0: exact (eval)
     n_envs: int = 64  # roundabouts stepped side by side (split over devices)
     horizon: int = 32  # env steps per differentiated window (truncated backprop)

@@ -31,12 +31,16 @@ from jaxround.state import EnvState
 DRIVERS = ("policy", "uncontrolled")
 
 
-def with_observer(cfg: ScenarioConfig, observer: str) -> ScenarioConfig:
-    """`cfg` with the AVs' observer the policy was trained with."""
-    if cfg.agent.observer == observer:
+def with_observer(
+    cfg: ScenarioConfig, observer: str, action: str | None = None
+) -> ScenarioConfig:
+    """`cfg` with the AVs' observer (and action) the policy was trained with."""
+    action = cfg.agent.action if action is None else action
+    if cfg.agent.observer == observer and cfg.agent.action == action:
         return cfg
     d = cfg.to_dict()
     d["agent"]["observer"] = observer
+    d["agent"]["action"] = action
     return config_from_dict(d)
 
 
@@ -63,6 +67,7 @@ def evaluate_policy(
     penetrations: Sequence[float],
     seeds: Sequence[int],
     max_vehicles: int = 32,
+    keep_records: bool = False,
 ) -> dict[str, Any]:
     """Run the policy and the uncontrolled baseline on every schedule.
 
@@ -72,6 +77,8 @@ def evaluate_policy(
         penetrations: AV shares.
         seeds: schedule seeds.
         max_vehicles: vehicle slots M.
+        keep_records: also return each run's `VehicleRecords` under
+            ``"records": {driver: {penetration: [per seed]}}`` (not JSON).
 
     Returns:
         ``{"scenario", "seeds", "policy": path, "layout": {...}, "results":
@@ -86,7 +93,7 @@ def evaluate_policy(
     """
     arrays, layout = load_policy(policy_path)
     check_scenario(layout, cfg)
-    cfg = with_observer(cfg, layout.observer)
+    cfg = with_observer(cfg, layout.observer, layout.action)
     env, params = make(cfg, max_vehicles=max_vehicles)
     obs, _ = jax.eval_shape(env.reset, jax.random.PRNGKey(0), params)
     if obs.shape[-1] != layout.obs_size:
@@ -113,15 +120,18 @@ def evaluate_policy(
 
     states = jax.jit(jax.vmap(one))(batch, keys, use_policy)
     per_run: dict[tuple[str, float], list[dict[str, Any]]] = {}
+    records: dict[str, dict[float, list[Any]]] = {d: {} for d in DRIVERS}
     horizon = cfg.demand.duration_s
     for i, (driver, p, _) in enumerate(runs):
         state = jax.tree.map(lambda x, i=i: x[i], states)
-        m = class_metrics(vehicle_records(env, state), horizon)
+        rec = vehicle_records(env, state)
+        records[driver].setdefault(p, []).append(rec)
+        m = class_metrics(rec, horizon)
         collisions = getattr(state, "collisions", None)
         m["collisions"] = None if collisions is None else int(collisions)
         m["slot_overflow"] = int(state.overflow)
         per_run.setdefault((driver, p), []).append(m)
-    return {
+    result = {
         "scenario": cfg.name,
         "seeds": list(seeds),
         "policy": str(policy_path),
@@ -136,6 +146,9 @@ def evaluate_policy(
             for d in DRIVERS
         },
     }
+    if keep_records:
+        result["records"] = records
+    return result
 
 
 #: Columns of the printed comparison.

@@ -44,6 +44,7 @@ class PolicyLayout:
     activation: str  # "tanh" or "relu"
     centralised: bool  # rows carry the mean of the other vehicles' rows
     accel_bounds: tuple[float, float]  # lowest and highest command, m/s^2
+    action: str = "accel"  # what the action means (the scenario's agent.action)
     scenario: str = ""  # scenario the policy was trained on (name or path)
     scenario_fingerprint: str = ""  # its roads and drivers (ScenarioConfig method)
 
@@ -131,6 +132,7 @@ def load_policy(path: str | Path) -> tuple[dict[str, np.ndarray], PolicyLayout]:
                 float(meta["accel_bounds"][0]),
                 float(meta["accel_bounds"][1]),
             ),
+            action=str(meta.get("action", "accel")),
             scenario=str(meta.get("scenario", "")),
             scenario_fingerprint=str(meta.get("scenario_fingerprint", "")),
         )

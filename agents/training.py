@@ -146,10 +146,21 @@ def policy_layout(trainer: BatchTrainer) -> PolicyLayout:
         hidden=tuple(cfg.hidden),
         activation=cfg.activation,
         centralised=cfg.centralised,
-        accel_bounds=(-scenario.drivers.av.decel, scenario.drivers.av.accel),
+        accel_bounds=action_bounds(scenario),
+        action=scenario.agent.action,
         scenario=cfg.scenario,
         scenario_fingerprint=scenario.roads_and_drivers_fingerprint(),
     )
+
+
+def action_bounds(scenario: Any) -> tuple[float, float]:
+    """The exported policy's action bounds: the AV's [-decel, accel] for a
+    speed command, `jaxround.assertiveness.RAW_BOUND` for assertiveness."""
+    if scenario.agent.action == "assertiveness":
+        from jaxround.assertiveness import RAW_BOUND
+
+        return (-RAW_BOUND, RAW_BOUND)
+    return (-scenario.drivers.av.decel, scenario.drivers.av.accel)
 
 
 def train_to_dir(

@@ -188,6 +188,8 @@ class SimulationConfig:
 OBSERVERS = ("paper", "rich")
 #: The AVs' rewards (`jaxround.reward`).
 REWARDS = ("paper", "system")
+#: What an AV's action means (`jaxround.env.RoundaboutEnv.step_env`).
+ACTIONS = ("accel", "assertiveness")
 
 
 @dataclass(frozen=True)
@@ -196,26 +198,30 @@ class AgentConfig:
 
     observer: str = "rich"  # "paper" (Eq. 1, 10 numbers) or "rich" (Eq. 1 + more)
     reward: str = "paper"  # "paper" (Eq. 3) or "system" (time and CO2 of all)
+    action: str = "accel"  # "accel" (a speed command) or "assertiveness" (vType)
     speed_weight: float = 1.0  # paper: weight of the desired-velocity term of Eq. 3
     pollution_weight: float = 1.0  # paper: weight of the pollution term of Eq. 3
     time_penalty: float = 1.0  # paper: subtracted per step (0: Eq. 3 exactly)
     time_weight: float = 1.0  # system: cost of one vehicle-second in the system
     co2_weight: float = 0.5  # system: cost of one gram of CO2
-    co2_shared: bool = True  # system: the CO2 of all vehicles, or the AV's own
+    share: float = (
+        0.5  # system: weight of all vehicles' cost (1) against the AV's own (0)
+    )
 
     def validate(self, where: str) -> None:
         if self.observer not in OBSERVERS:
             raise ConfigError(
                 f"{where}.observer: {self.observer!r}, expected one of {OBSERVERS}"
             )
+        if self.action not in ACTIONS:
+            raise ConfigError(
+                f"{where}.action: {self.action!r}, expected one of {ACTIONS}"
+            )
         if self.reward not in REWARDS:
             raise ConfigError(
                 f"{where}.reward: {self.reward!r}, expected one of {REWARDS}"
             )
-        if not isinstance(self.co2_shared, bool):
-            raise ConfigError(
-                f"{where}.co2_shared: {self.co2_shared!r}, expected true or false"
-            )
+        _unit_interval(self.share, f"{where}.share")
         for name in ("speed_weight", "pollution_weight", "time_penalty",
                      "time_weight", "co2_weight"):  # fmt: skip
             _non_negative(getattr(self, name), f"{where}.{name}")

@@ -40,11 +40,13 @@ class DriverSpec:
         spec: as given (``uncontrolled``, a scripted spec or a policy path).
         kind: ``"uncontrolled"``, ``"scripted"`` or ``"policy"``.
         observer: the observer the driver reads (None when uncontrolled).
+        action: what its action means (`jaxround.config.ACTIONS`).
     """
 
     spec: str
     kind: str
     observer: str | None
+    action: str = "accel"
 
 
 def parse_driver(spec: str | None) -> DriverSpec:
@@ -69,15 +71,17 @@ def parse_driver(spec: str | None) -> DriverSpec:
             "'uncontrolled', accel:A, cruise:V, eco[:B], timed[:H] or a policy "
             "file (.npz/.json, its stem or a training folder)"
         ) from None
-    return DriverSpec(spec, "policy", layout.observer)
+    return DriverSpec(spec, "policy", layout.observer, layout.action)
 
 
 def config_for(cfg: ScenarioConfig, driver: DriverSpec) -> ScenarioConfig:
-    """`cfg` with the observer a policy file reads (others read their own)."""
-    if driver.kind != "policy" or cfg.agent.observer == driver.observer:
+    """`cfg` with the observer and action a driver reads and gives."""
+    observer = driver.observer or cfg.agent.observer
+    if cfg.agent.observer == observer and cfg.agent.action == driver.action:
         return cfg
     d = cfg.to_dict()
-    d["agent"]["observer"] = driver.observer
+    d["agent"]["observer"] = observer
+    d["agent"]["action"] = driver.action
     return config_from_dict(d)
 
 

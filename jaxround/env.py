@@ -22,6 +22,7 @@ import numpy as np
 
 from jaxround import command as traci
 from jaxround import dynamics, emissions, geometry, idm, insertion, observe
+from jaxround.assertiveness import retuned_params
 from jaxround.config import ConfigError, ScenarioConfig, load_config
 from jaxround.geometry import NetArrays
 from jaxround.network import CompiledNetwork, compile_network
@@ -237,7 +238,10 @@ class RoundaboutEnv:
         """One step without the automatic reset (see `step`).
 
         Every vehicle plans its speed as SUMO's IDM does with its class's
-        parameters. An AV's ``action[:, 0]`` (m/s^2) becomes the speed command
+        parameters. With ``agent.action: assertiveness`` an AV's
+        ``action[:, 0]`` retunes its tau and impatience for the step
+        (`jaxround.assertiveness`; 0 is its vType). Otherwise (``accel``) an
+        AV's ``action[:, 0]`` (m/s^2) becomes the speed command
         ``speed + action * dt`` (`command_from_action`), which SUMO applies
         while it plans (`jaxround.command`): under speed mode 31 it can slow
         an AV below its IDM speed, never raise it above its safe speed; a NaN
@@ -259,7 +263,12 @@ class RoundaboutEnv:
 
         # 1. the AVs' commands, applied as SUMO applies a TraCI speed command
         #    while every vehicle plans (IDM, junctions); then all move
-        command = command_from_action(state, action, pv, self.dt)
+        agent = state.active & state.is_av
+        if self.cfg.agent.action == "assertiveness":
+            pv = retuned_params(pv, action[:, 0], agent)
+            command = jnp.full_like(state.speed, jnp.nan)
+        else:
+            command = command_from_action(state, action, pv, self.dt)
         v_next, regs, _, leader, gap = dynamics.planned_speed(
             net, pv, state.route, state.pos, state.speed, state.speed_factor,
             state.active, state.waiting_s, state.registrations, t, self.dt,
@@ -279,7 +288,6 @@ class RoundaboutEnv:
         waiting = jnp.where(
             v_next < dynamics.HALTING_SPEED, state.waiting_s + self.dt, 0.0
         )
-        agent = state.active & state.is_av
         _, lane, _ = geometry.locate(net, state.route, state.pos)
         v_desired = jnp.minimum(net.lane_speed[lane] * state.speed_factor, p.max_speed)
         if self.cfg.agent.reward == "system":
@@ -287,7 +295,7 @@ class RoundaboutEnv:
             n_in_system = jnp.sum(state.active) + jnp.sum(pending)
             reward = system_reward(
                 n_in_system, co2_step, state.active, agent, p, self.dt,
-                co2_shared=self.cfg.agent.co2_shared,
+                share=self.cfg.agent.share,
             )  # fmt: skip
         else:
             reward = av_reward(v_next, v_desired, co2_step / self.dt, p)

@@ -68,19 +68,28 @@ def system_reward(
     agent: jax.Array,
     params: EnvParams,
     dt: float,
-    co2_shared: bool = True,
+    share: float = 1.0,
 ) -> jax.Array:
     """A reward for what the evaluation measures, per slot, float (M,).
 
-    The time term is the crossing time of Eq. 4 summed over all vehicles:
-    every vehicle in the network or due and waiting to be inserted adds dt
-    to it in this step. It is shared among the AVs acting in this step, so
-    that their rewards add up to minus the system's cost. The CO2 term is
-    either shared the same way (all vehicles' CO2 of the step) or each AV's
-    own::
+    Two costs per step, each a blend of the whole roundabout's (weight
+    `share`) and the AV's own (weight ``1 - share``):
 
-        r_i = -(w_t * dt * n_in_system + w_c * co2_all_g) / n_agents   (shared)
-        r_i = -w_t * dt * n_in_system / n_agents - w_c * co2_i_g       (own CO2)
+    - time: the crossing time of Eq. 4 summed over all vehicles grows by dt
+      for every vehicle in the network or due and waiting to be inserted;
+      shared equally among the AVs acting in this step, so that at
+      ``share = 1`` their rewards add up to minus the system's cost. The
+      AV's own: dt for being in the network.
+    - CO2: all vehicles' CO2 of the step, shared the same way; the AV's own.
+
+    ::
+
+        r_i = -w_t dt (share n_in_system / n_agents + (1 - share))
+              -w_c (share co2_all_g / n_agents + (1 - share) co2_i_g)
+
+    The shared part pays an AV for what it does to the others (the human
+    drivers beside it, the AVs behind), the own part gives each AV a clear
+    signal of its own decisions.
 
     Args:
         n_in_system: () vehicles in the network or waiting to be inserted at
@@ -91,17 +100,19 @@ def system_reward(
         params: ``reward_time_weight`` (per vehicle-second) and
             ``reward_co2_weight`` (per g).
         dt: step length, s.
-        co2_shared: share the CO2 of all vehicles (True) or charge each AV
-            its own.
+        share: weight of the roundabout's cost, in [0, 1].
 
     Returns:
         float (M,) the reward of each AV slot, 0 elsewhere.
     """
     n_agents = jnp.maximum(jnp.sum(agent), 1)
     co2_g = jnp.where(active, co2_step_mg, 0.0) / 1000.0
-    time_cost = params.reward_time_weight * dt * n_in_system / n_agents
-    if co2_shared:
-        co2_cost = params.reward_co2_weight * jnp.sum(co2_g) / n_agents
-    else:
-        co2_cost = params.reward_co2_weight * co2_g
+    time_cost = (
+        params.reward_time_weight
+        * dt
+        * (share * n_in_system / n_agents + (1.0 - share))
+    )
+    co2_cost = params.reward_co2_weight * (
+        share * jnp.sum(co2_g) / n_agents + (1.0 - share) * co2_g
+    )
     return jnp.where(agent, -(time_cost + co2_cost), 0.0)

@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from jaxround.assertiveness import TAU_RANGE
 from jaxround.config import ScenarioConfig
 from jaxround.observe import OBSERVATION_SIZES
 from jaxround.schedule import Schedule
@@ -79,12 +80,16 @@ class PolicyController:
         observer: str,
         max_slots: int = DEFAULT_SLOTS,
         strict: bool = False,
+        action: str = "accel",
     ) -> None:
         self.sumo = SumoObserver(cfg, schedule, observer, max_slots, strict)
         self.act = act
+        self.action = action
         self.dt = cfg.simulation.dt_s
         av = cfg.drivers.av
         self.av_accel, self.av_decel = av.accel, av.decel
+        self.av_tau, self.av_impatience = av.tau, av.impatience
+        self._retuned: dict[str, tuple[float, float]] = {}
         self._lanes_of_edge: dict[str, int] = {}
         self._commanded: set[str] = set()
         self._times: dict[str, list[int]] = {k: [] for k in PHASES}
@@ -105,11 +110,12 @@ class PolicyController:
     ) -> PolicyController:
         """A controller for an exported policy (`agents.export`); raises as
         `policy_observer`."""
-        from agents.export import load_policy_numpy
+        from agents.export import load_policy, load_policy_numpy
 
         observer = policy_observer(policy_path)
         act = load_policy_numpy(policy_path)
-        return cls(cfg, schedule, act, observer, max_slots, strict)
+        action = load_policy(policy_path)[1].action
+        return cls(cfg, schedule, act, observer, max_slots, strict, action)
 
     # ------------------------------------------------------------------ a step
 
@@ -159,6 +165,9 @@ class PolicyController:
                 no commands, only releases).
             change: (n,) lane-change decision (true or > 0.5: change).
         """
+        if self.action == "assertiveness":
+            self.retune(libsumo, traffic, accel)
+            return
         veh = libsumo.vehicle
         n = len(accel)
         v_cmd = commanded_speed(
@@ -185,6 +194,35 @@ class PolicyController:
                 veh.setSpeed(vid, -1.0)
         self._commanded = commanded
         self.commands += len(commanded)
+
+    def retune(self, libsumo: Any, traffic: SumoTraffic, raw: np.ndarray) -> None:
+        """Set each AV's tau and impatience for the next step from its raw
+        action (`jaxround.assertiveness`; `set_tau_and_impatience`, only
+        where they change).
+
+        Args:
+            libsumo: the running simulation.
+            traffic: the vehicles as `SumoObserver.read` gave them.
+            raw: float (n,) raw action per occupied slot (empty: none).
+        """
+        n = len(raw)
+        u = np.tanh(np.nan_to_num(np.asarray(raw, np.float64)))
+        tau = self.av_tau * TAU_RANGE ** (-u)
+        imp = np.clip(self.av_impatience + np.maximum(u, 0.0), 0.0, 1.0)
+        is_av = (traffic.column("is_av")[:n] > 0.5).tolist()
+        retuned = {}
+        for vid, av, t, i in zip(traffic.ids, is_av, tau.tolist(), imp.tolist()):
+            if not av:
+                continue
+            if self._retuned.get(vid, (self.av_tau, self.av_impatience)) != (t, i):
+                set_tau_and_impatience(libsumo, vid, t, i)
+                self.commands += 1
+            retuned[vid] = (t, i)
+        # an AV that lost its slot drives its vType again
+        for vid in traffic.unslotted:
+            if vid in self._retuned:
+                set_tau_and_impatience(libsumo, vid, self.av_tau, self.av_impatience)
+        self._retuned = retuned
 
     def _change_lane(self, libsumo: Any, vid: str) -> None:
         """Move to a neighbouring lane (left if there is one) on a multi-lane road."""
@@ -237,6 +275,20 @@ def policy_observer(policy_path: str | Path) -> str:
             f"{OBSERVATION_SIZES.get(layout.observer)}"
         )
     return layout.observer
+
+
+def set_tau_and_impatience(
+    libsumo: Any, vid: str, tau: float, impatience: float
+) -> None:
+    """Give one vehicle its own tau and impatience from the next step on.
+
+    ``vehicle.setTau`` gives the vehicle a type of its own (``av@<id>``), a
+    copy of its vType; the impatience is set on that type. (Measured with
+    SUMO 1.28: ``vehicle.setImpatience`` leaves ``getImpatience`` and the
+    junction decisions unchanged.)
+    """
+    libsumo.vehicle.setTau(vid, tau)
+    libsumo.vehicletype.setImpatience(libsumo.vehicle.getTypeID(vid), impatience)
 
 
 def commanded_speed(

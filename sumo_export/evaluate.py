@@ -88,14 +88,15 @@ def controller_summary(reports: Sequence[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
-def sumo_sweep(
+def sumo_runs(
     cfg: ScenarioConfig,
     penetrations: Sequence[float],
     seeds: Sequence[int],
     workers: int | None = None,
     show_progress: bool = True,
     controller: ControllerFactory | None = None,
-) -> dict[float, dict[str, Any]]:
+    desc: str = "SUMO runs",
+) -> dict[float, list[SumoRun]]:
     """Run every (penetration, seed) schedule in SUMO, several processes at once.
 
     Args:
@@ -106,24 +107,53 @@ def sumo_sweep(
         show_progress: a progress bar on stderr.
         controller: drives the AVs of every run (built in each worker, see
             `sumo_export.runner.run_many`); None leaves them to their vType.
+        desc: the progress bar's label.
 
     Returns:
-        ``{penetration: summarise_runs(...)}`` in the order given.
+        ``{penetration: [SumoRun per seed]}`` in the order given.
     """
     jobs = [(p, s) for p in penetrations for s in seeds]
     base = {s: make_schedule(cfg, seed=s, penetration=0.0) for s in seeds}
     schedules = [base[s].with_penetration(p) for p, s in jobs]
-    bar = tqdm(total=len(jobs), desc="SUMO runs", unit="run", disable=not show_progress)
+    bar = tqdm(total=len(jobs), desc=desc, unit="run", disable=not show_progress)
     runs = run_many(
         cfg, schedules, workers=workers, progress=lambda _: bar.update(),
         controller=controller,
     )  # fmt: skip
     bar.close()
-    out: dict[float, dict[str, Any]] = {}
-    for p in penetrations:
-        mine = [r for (pj, _), r in zip(jobs, runs, strict=True) if pj == p]
-        out[p] = summarise_runs(cfg, mine)
-    return out
+    return {
+        p: [r for (pj, _), r in zip(jobs, runs, strict=True) if pj == p]
+        for p in penetrations
+    }
+
+
+def sumo_sweep(
+    cfg: ScenarioConfig,
+    penetrations: Sequence[float],
+    seeds: Sequence[int],
+    workers: int | None = None,
+    show_progress: bool = True,
+    controller: ControllerFactory | None = None,
+) -> dict[float, dict[str, Any]]:
+    """`sumo_runs`, summarised: ``{penetration: summarise_runs(...)}``."""
+    runs = sumo_runs(cfg, penetrations, seeds, workers, show_progress, controller)
+    return {p: summarise_runs(cfg, mine) for p, mine in runs.items()}
+
+
+def policy_controller(
+    cfg: ScenarioConfig, policy_path: str | Path, max_slots: int = DEFAULT_SLOTS
+) -> PolicyControllerFactory:
+    """The controller factory of an exported policy, checked before any run.
+
+    Raises:
+        FileNotFoundError, ValueError: as `policy_observer`, or the policy was
+            trained on other roads or drivers.
+    """
+    from agents.export import check_scenario, load_policy
+
+    policy_observer(policy_path)  # fail here rather than in every worker
+    check_scenario(load_policy(policy_path)[1], cfg)
+    return PolicyControllerFactory(str(policy_path), max_slots)
 
 
 def sumo_policy_sweep(
@@ -140,29 +170,15 @@ def sumo_policy_sweep(
     Every run builds a `sumo_export.controller.PolicyController` in its
     worker process; collisions are checked on the junctions as in every run.
 
-    Args:
-        cfg: the scenario.
-        policy_path: the exported policy (``.npz``, ``.json``, stem or folder).
-        penetrations: AV shares.
-        seeds: schedule seeds.
-        workers: SUMO processes side by side; defaults to the CPUs.
-        show_progress: a progress bar on stderr.
-        max_slots: the controller's vehicle slots.
-
     Returns:
         ``{penetration: summarise_runs(...)}``: "mean" holds the class
         metrics (`jaxround.metrics.class_metrics`, mean over seeds), the
         safety counters (totals) and "controller" (`controller_summary`).
 
     Raises:
-        FileNotFoundError, ValueError: as `policy_observer`, or the policy was
-            trained on other roads or drivers; before any run.
+        FileNotFoundError, ValueError: as `policy_controller`; before any run.
     """
-    from agents.export import check_scenario, load_policy
-
-    policy_observer(policy_path)  # fail here rather than in every worker
-    check_scenario(load_policy(policy_path)[1], cfg)
-    factory = PolicyControllerFactory(str(policy_path), max_slots)
+    factory = policy_controller(cfg, policy_path, max_slots)
     return sumo_sweep(
         cfg, penetrations, seeds, workers=workers, show_progress=show_progress,
         controller=factory,

@@ -225,10 +225,11 @@ def test_system_reward_by_hand(milan) -> None:
     # time cost 2 * 0.5 * 5 = 5 shared by 2 AVs; CO2 of all 4 g * 0.5 = 2
     shared = system_reward(jnp.float32(5.0), co2_mg, active, agent, params, DT)
     np.testing.assert_allclose(shared, [-3.5, 0.0, -3.5, 0.0], rtol=1e-6)
-    own = system_reward(
-        jnp.float32(5.0), co2_mg, active, agent, params, DT, co2_shared=False
-    )
-    np.testing.assert_allclose(own, [-3.0, 0.0, -2.5, 0.0], rtol=1e-6)
+    # own: 2 * 0.5 = 1 for being in the network, own CO2 * 0.5
+    own = system_reward(jnp.float32(5.0), co2_mg, active, agent, params, DT, share=0.0)
+    np.testing.assert_allclose(own, [-1.5, 0.0, -1.0, 0.0], rtol=1e-6)
+    half = system_reward(jnp.float32(5.0), co2_mg, active, agent, params, DT, share=0.5)
+    np.testing.assert_allclose(half, [-2.5, 0.0, -2.25, 0.0], rtol=1e-6)
     # the AVs' rewards add up to minus the system's cost of the step
     assert float(jnp.sum(shared)) == pytest.approx(-(5.0 + 2.0))
 
@@ -238,7 +239,7 @@ def test_system_reward_in_the_env_sums_to_the_crossing_time() -> None:
     d["demand"]["n_vehicles"] = 40
     d["demand"]["duration_s"] = 120.0
     d["simulation"]["penetration"] = 1.0
-    d["agent"] = {"reward": "system", "co2_weight": 0.0, "time_weight": 1.0}
+    d["agent"] = {"reward": "system", "co2_weight": 0.0, "share": 1.0}
     env, params = make(config_from_dict(d), episode_s=600.0)
     sched = env.schedule_from_numpy(make_schedule(env.cfg, seed=3, penetration=1.0))
     obs, state = env.reset_to_schedule(sched, params)

@@ -54,6 +54,17 @@ def test_main_job_writes_every_result(finished_run: Path) -> None:
         assert full["av"]["n_vehicles"] == 60 and full["collisions"] == 0
     # two updates teach nothing: only the uncontrolled AVs surely all arrive
     assert results["jax_uncontrolled"]["100"]["all"]["n_arrived"] == 60
+    assert results["sumo_uncontrolled"]["100"]["all"]["n_arrived"] == 60
+    # the policy against uncontrolled AVs, paired on the same schedules
+    for sim in ("sumo", "jax"):
+        pair = results["comparison"][sim]["100"]["all"]["crossing_time_s"]
+        assert pair["n_vehicles"] == 60
+        mean_policy = results[sim]["100"]["all"]["mean_crossing_time_s"]
+        mean_plain = results[sim + "_uncontrolled"]["100"]["all"][
+            "mean_crossing_time_s"
+        ]
+        assert pair["diff"] == pytest.approx(mean_policy - mean_plain, abs=1e-6)
+    assert "100" in results["comparison"]["sumo_to_jax_gain"]
     assert results["training"]["updates"] == 2
     for name in (
         "train/policy.npz",
