@@ -40,6 +40,10 @@ ACTIVATIONS = ("tanh", "relu")
 Config = TypeVar("Config", bound="TrainerConfig")
 
 
+#: The scenario's agent fields a trainer config may set ('' keeps the scenario's).
+AGENT_FIELDS = {"observer": OBSERVERS, "action": ACTIONS, "reward": REWARDS}
+
+
 class TrainerConfig:
     """What the trainers' configs share: the scenario fields' checks, YAML and
     the training scenario. Subclasses are frozen dataclasses with the fields
@@ -61,22 +65,15 @@ class TrainerConfig:
         c: Any = self
         for name in ("demand_window_s", "episode_s"):
             _require(getattr(c, name) > 0, name, getattr(c, name), "> 0")
-        for name in (
-            "max_vehicles",
-            "n_envs",
-            "total_env_steps",
-            "checkpoint_every",
-            "keep_checkpoints",
-        ):
+        for name in ("max_vehicles", "n_envs", "total_env_steps",
+                     "checkpoint_every", "keep_checkpoints"):  # fmt: skip
             _require(getattr(c, name) >= 1, name, getattr(c, name), ">= 1")
         _require(c.seed >= 0, "seed", c.seed, ">= 0")
         if not c.penetrations:
             raise ConfigError("penetrations: empty, expected at least one share")
         for i, p in enumerate(c.penetrations):
             _require(0 <= p <= 1, f"penetrations[{i}]", p, "a share in [0, 1]")
-        for name, allowed in (
-            ("observer", OBSERVERS), ("action", ACTIONS), ("reward", REWARDS)
-        ):  # fmt: skip
+        for name, allowed in AGENT_FIELDS.items():
             value = getattr(c, name)
             if value and value not in allowed:
                 raise ConfigError(f"{name}: {value!r}, expected '' or one of {allowed}")
@@ -117,16 +114,10 @@ class TrainerConfig:
     def base_scenario(self) -> ScenarioConfig:
         """The scenario as given (full demand), with `observer`, `action` and
         `reward` applied where they are set."""
-        c: Any = self
-        cfg = load_scenario(c.scenario)
-        chosen = {
-            k: getattr(c, k) for k in ("observer", "action", "reward") if getattr(c, k)
-        }
-        if not chosen:
-            return cfg
+        cfg = load_scenario(self.scenario)  # type: ignore[attr-defined]
         d = cfg.to_dict()
-        d["agent"].update(chosen)
-        return config_from_dict(d)
+        d["agent"].update({k: v for k in AGENT_FIELDS if (v := getattr(self, k))})
+        return config_from_dict(d) if d != cfg.to_dict() else cfg
 
     def training_scenario(self) -> ScenarioConfig:
         """The scenario cut to `demand_window_s` at its own rate of vehicles.
@@ -165,6 +156,7 @@ class PPOConfig(TrainerConfig):
     clip_eps: float = 0.2  # PPO ratio clip, also the value clip
     vf_coef: float = 0.5  # weight of the value loss
     ent_coef: float = 0.0  # weight of the entropy bonus
+    trip_noise: bool = False  # exploration noise held over each vehicle's trip
     lr: float = 3e-4  # Adam learning rate (start value when annealed)
     anneal_lr: bool = True  # decay the learning rate linearly to 0
     max_grad_norm: float = 0.5  # global gradient-norm clip

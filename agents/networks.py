@@ -144,14 +144,23 @@ def entropy(out: PolicyOutput) -> jax.Array:
     return gauss + lane
 
 
-def sample(out: PolicyOutput, key: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+def sample(
+    out: PolicyOutput, key: jax.Array, noise: jax.Array | None = None
+) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Draw actions for every slot.
+
+    Args:
+        out: the network's output.
+        key: PRNG key.
+        noise: float (..., M) standard normal noise of the command to use
+            (e.g. held over a vehicle's trip); drawn from `key` if None.
 
     Returns:
         (accel float (..., M), change int32 (..., M), log_prob float (..., M)).
     """
     k_a, k_l = jax.random.split(key)
-    noise = jax.random.normal(k_a, out.accel_mean.shape, out.accel_mean.dtype)
+    if noise is None:
+        noise = jax.random.normal(k_a, out.accel_mean.shape, out.accel_mean.dtype)
     accel = out.accel_mean + jnp.exp(out.log_std) * noise
     change = jax.random.categorical(k_l, out.lane_logits).astype(jnp.int32)
     return accel, change, log_prob(out, accel, change)

@@ -75,6 +75,8 @@ class RunnerState(NamedTuple):
             so far (unscaled rewards).
         key: PRNG key.
         update: int32, updates done.
+        trip_noise: float (B, M) each slot's exploration noise, drawn when a
+            vehicle takes the slot and held for its trip (`trip_noise`).
     """
 
     params: Any
@@ -84,6 +86,7 @@ class RunnerState(NamedTuple):
     episode_return: jax.Array
     key: jax.Array
     update: jax.Array
+    trip_noise: jax.Array
 
 
 class Transition(NamedTuple):
@@ -136,18 +139,25 @@ class Trainer(BatchTrainer):
 
     def init(self, key: jax.Array) -> RunnerState:
         """Fresh parameters and B freshly reset roundabouts."""
-        return RunnerState(**self.fresh_start(key))
+        start = self.fresh_start(key)
+        noise = jax.random.normal(jax.random.fold_in(key, 1), start["obs"].shape[:-1])
+        return RunnerState(**start, trip_noise=self.shard(noise))
 
     def rollout(self, runner: RunnerState) -> tuple[RunnerState, Transition]:
         """`n_steps` env steps of all roundabouts; Transition leaves are (T, B, ...)."""
         b, dt = self.config.n_envs, self.env.dt
 
         def one_step(carry, _):
-            env_state, obs, ep_return, key = carry
-            key, k_act, k_env = jax.random.split(key, 3)
+            env_state, obs, ep_return, trip_noise, prev_vid, key = carry
+            key, k_act, k_env, k_trip = jax.random.split(key, 4)
             active = env_state.active  # (B, M)
             out = self.apply(runner.params, obs, active)
-            accel, change, log_prob = networks.sample(out, k_act)
+            if self.config.trip_noise:  # a new vehicle in a slot draws anew
+                fresh = jax.random.normal(k_trip, trip_noise.shape)
+                trip_noise = jnp.where(env_state.vid != prev_vid, fresh, trip_noise)
+                accel, change, log_prob = networks.sample(out, k_act, trip_noise)
+            else:
+                accel, change, log_prob = networks.sample(out, k_act)
             action = networks.env_action(accel, change)  # (B, M, 2)
             obs_next, state_next, reward, done, info = self.env_step(
                 jax.random.split(k_env, b), env_state, action
@@ -167,17 +177,21 @@ class Trainer(BatchTrainer):
                 finished_return=o.finished_return,
                 crossing_s=o.crossing_s,
             )
-            carry = self.shard((state_next, obs_next, o.episode_return))
-            return (*carry, key), step
+            carry = self.shard((state_next, obs_next, o.episode_return, trip_noise))
+            return (*carry, env_state.vid, key), step
 
         key, k_roll = jax.random.split(runner.key)
-        carry = (runner.env_state, runner.obs, runner.episode_return, k_roll)
-        (env_state, obs, ep_return, _), traj = jax.lax.scan(
+        carry = (
+            runner.env_state, runner.obs, runner.episode_return, runner.trip_noise,
+            runner.env_state.vid, k_roll,
+        )  # fmt: skip
+        (env_state, obs, ep_return, trip_noise, _, _), traj = jax.lax.scan(
             one_step, carry, None, length=self.config.n_steps
         )
         runner = runner._replace(
-            env_state=env_state, obs=obs, episode_return=ep_return, key=key
-        )
+            env_state=env_state, obs=obs, episode_return=ep_return, key=key,
+            trip_noise=trip_noise,
+        )  # fmt: skip
         return runner, traj
 
     def learn(

@@ -26,6 +26,8 @@ def by_label(per_penetration: dict[float, Any]) -> dict[str, Any]:
     return {percent_label(p): m for p, m in per_penetration.items()}
 
 
+#: What the policy does differently, drawn into the evaluation folder.
+BEHAVIOUR_PNG = "behaviour.png"
 #: Penetrations at which the policy is compared with uncontrolled AVs.
 COMPARED_PENETRATIONS = (0.5, 1.0)
 
@@ -92,6 +94,13 @@ def evaluate_everywhere(
         ),
         "tables": tables,
     }
+    from agents.behaviour import plot_behaviour, policy_behaviour
+
+    behaviour = policy_behaviour(policy, cfg, penetration=1.0, seed=seeds[0])
+    plot_behaviour(
+        behaviour, out / BEHAVIOUR_PNG,
+        f"{cfg.name}, 100% AVs, seed {seeds[0]}: the policy's AVs and uncontrolled AVs",
+    )  # fmt: skip
     write_json(result, out / "evaluation.json")
     return result
 

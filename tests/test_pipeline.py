@@ -35,6 +35,9 @@ def finished_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
         "epochs": 1,
         "minibatches": 2,
         "checkpoint_every": 1,
+        "action": "assertiveness",
+        "reward": "system",
+        "trip_noise": True,
     }
     (root / "ppo.yaml").write_text(yaml.safe_dump(ppo))
     out = root / "run"
@@ -75,6 +78,8 @@ def test_main_job_writes_every_result(finished_run: Path) -> None:
         "sumo_policy_table4.md",
         "sumo_policy.png",
         "jax_policy_table3.md",
+        "sumo_uncontrolled_table3.md",
+        "behaviour.png",
         "evaluation.json",
         "scenario/milan_small.sumocfg",
     ):

@@ -53,6 +53,9 @@ TINY = dict(
     minibatches=2,
     checkpoint_every=2,
     reward_scale=0.1,
+    action="assertiveness",
+    reward="system",
+    trip_noise=True,
 )
 
 
@@ -388,6 +391,20 @@ def test_chunks_equal_the_whole_run(trainer: Trainer) -> None:
     chunked = {k: np.concatenate([np.asarray(p[k]) for p in parts]) for k in metrics}
     assert tree_equal(chunked, metrics)
     assert tree_equal(stepped, runner)
+
+
+def test_trip_noise_is_held_while_a_vehicle_keeps_its_slot(trainer: Trainer) -> None:
+    runner = jax.jit(trainer.init)(jax.random.PRNGKey(1))
+    runner, traj = jax.jit(trainer.rollout)(runner)
+    out = trainer.apply(runner.params, traj.obs, traj.active)
+    noise = np.asarray((traj.accel - out.accel_mean) * jnp.exp(-out.log_std))
+    active = np.asarray(traj.active)
+    # a slot holds the same vehicle while its position keeps growing
+    pos = np.asarray(traj.obs[..., 0])
+    same = active[1:] & active[:-1] & (pos[1:] > pos[:-1])
+    assert same.sum() > 20
+    np.testing.assert_allclose(noise[1:][same], noise[:-1][same], atol=1e-4)
+    assert np.std(noise[active]) > 0.3  # but it does vary between vehicles
 
 
 TWO_DEVICES = """
