@@ -185,6 +185,8 @@ def run_jax(
     label -> ``{"records", "overflow"}`` per `schedules` entry."""
     from sumo_export.runner import DRAIN_S
 
+    # the scripts command speeds, whatever action the scenario's agent has
+    cfg = dataclasses.replace(cfg, agent=dataclasses.replace(cfg.agent, action="accel"))
     # as long as SUMO may run; each episode stops when its vehicles have left
     env, base = make(cfg, max_vehicles=32, episode_s=cfg.demand.duration_s + DRAIN_S)
     jobs = []  # (label, params, schedule, rule, value)

@@ -39,6 +39,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxround.observe import DISTANCE_SCALE, RING_HORIZON_S, SPEED_SCALE
+from jaxround.rollout import NO_COMMAND
 
 #: Columns of the rich observation read here (`observe.rich_observation`).
 OWN_SPEED = 10  # speed / SPEED_SCALE
@@ -46,8 +47,6 @@ LEADER_GAP = 11  # gap to the leader / DISTANCE_SCALE, 1 without a leader
 LEADER_REL_SPEED = 12  # (leader's speed - own) / SPEED_SCALE
 TO_YIELD_LINE = 13  # distance to the yield line / DISTANCE_SCALE, in [-1, 1]
 RING_ARRIVAL = 14  # the ring traffic's soonest arrival / RING_HORIZON_S, <= 1
-#: No command (`jaxround.env.command_from_action`): the AV drives its vType.
-NO_COMMAND = float("nan")
 #: A leader slower than this, m/s, is standing: a stop behind it is certain.
 STANDING_SPEED = 0.5
 #: Distance kept to a standing leader, m: SUMO's default minGap.
