@@ -3,8 +3,11 @@
 Each controller maps the ``"rich"`` observation rows (`jaxround.observe`,
 17 numbers per slot) to an acceleration command per slot, as a trained
 policy does; the environment (and SUMO's `sumo_export.controller`) clips the
-command to the AV's [-decel, accel] and caps the speed at the AV's IDM speed.
-A command of `FULL_THROTTLE` therefore leaves an AV to its own vType.
+command to the AV's [-decel, accel] and applies it as SUMO applies a speed
+command under speed mode 31 (`jaxround.command`): never above the AV's safe
+(IDM) speed.
+Where a rule has nothing to say it gives `NO_COMMAND` (NaN): the AV drives
+its own vType exactly, as if uncontrolled.
 
 Specs, as accepted wherever a controller is named:
 
@@ -36,6 +39,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxround.observe import DISTANCE_SCALE, RING_HORIZON_S, SPEED_SCALE
+from jaxround.rollout import NO_COMMAND
 
 #: Columns of the rich observation read here (`observe.rich_observation`).
 OWN_SPEED = 10  # speed / SPEED_SCALE
@@ -43,8 +47,6 @@ LEADER_GAP = 11  # gap to the leader / DISTANCE_SCALE, 1 without a leader
 LEADER_REL_SPEED = 12  # (leader's speed - own) / SPEED_SCALE
 TO_YIELD_LINE = 13  # distance to the yield line / DISTANCE_SCALE, in [-1, 1]
 RING_ARRIVAL = 14  # the ring traffic's soonest arrival / RING_HORIZON_S, <= 1
-#: A command above any vType's accel: the AV drives its own IDM.
-FULL_THROTTLE = 1e3
 #: A leader slower than this, m/s, is standing: a stop behind it is certain.
 STANDING_SPEED = 0.5
 #: Distance kept to a standing leader, m: SUMO's default minGap.
@@ -101,6 +103,31 @@ def controller_from_spec(spec: str, dt_s: float = 0.5) -> ScriptedController:
     return ScriptedController(spec=spec, dt_s=dt_s)
 
 
+def rule_and_value(spec: str) -> tuple[int, float]:
+    """The index of the spec's rule in `RULES` and its value, for
+    `scripted_command` (raises as `controller_from_spec`)."""
+    name, value = _parse(spec)
+    return list(RULES).index(name), value
+
+
+def scripted_command(
+    obs: jax.Array, rule: jax.Array, value: jax.Array, dt_s: float
+) -> jax.Array:
+    """The command of the rule with index `rule` (traced: one compiled program
+    serves every controller of a batch), float (M,).
+
+    Args:
+        obs: float (M, 17) rich observation rows.
+        rule: int, index into `RULES` (`rule_and_value`).
+        value: float, the rule's value.
+        dt_s: the simulation step, s.
+    """
+    branches = [
+        lambda o, x, fn=fn: fn(o, x, dt_s).astype(o.dtype) for fn in RULES.values()
+    ]
+    return jax.lax.switch(rule, branches, obs, jnp.asarray(value, obs.dtype))
+
+
 def is_scripted_spec(spec: str) -> bool:
     """Whether `spec` names a scripted controller (rather than, say, a file)."""
     return spec.split(":", 1)[0] in RULES
@@ -132,7 +159,7 @@ def eco_approach(obs: jax.Array, coast_decel: float, dt_s: float) -> jax.Array:
     to_line = jnp.where(entry_taken(obs), line, jnp.inf)
     stop_in = jnp.maximum(jnp.minimum(to_queue, to_line), 0.1)  # (M,)
     needed = v * v / (2.0 * stop_in)  # 0 where no stop is certain
-    return jnp.where(needed >= coast_decel, -needed, FULL_THROTTLE)
+    return jnp.where(needed >= coast_decel, -needed, NO_COMMAND)
 
 
 def timed_approach(obs: jax.Array, headway_s: float, dt_s: float) -> jax.Array:
@@ -146,7 +173,7 @@ def timed_approach(obs: jax.Array, headway_s: float, dt_s: float) -> jax.Array:
     # v_end^2 = v^2 + 2 a d: the even deceleration that arrives at v_end
     accel = (v_end * v_end - v * v) / (2.0 * dist)
     slow_down = entry_taken(obs) & (accel < 0.0)
-    return jnp.where(slow_down, accel, FULL_THROTTLE)
+    return jnp.where(slow_down, accel, NO_COMMAND)
 
 
 def entry_taken(obs: jax.Array) -> jax.Array:

@@ -14,9 +14,9 @@ from jaxround.metrics import class_metrics
 from jaxround.observe import DISTANCE_SCALE, RING_HORIZON_S, SPEED_SCALE
 from jaxround.schedule import make_schedule
 from jaxround.scripted import (
-    FULL_THROTTLE,
     LEADER_GAP,
     LEADER_REL_SPEED,
+    NO_COMMAND,
     OWN_SPEED,
     RING_ARRIVAL,
     TO_YIELD_LINE,
@@ -99,16 +99,16 @@ def test_eco_brakes_evenly_only_to_a_certain_stop() -> None:
     )
     expected = [
         -(10.0**2) / (2 * 17.5),
-        FULL_THROTTLE,
+        NO_COMMAND,
         -(10.0**2) / (2 * 39.9),
-        FULL_THROTTLE,
-        FULL_THROTTLE,
-        FULL_THROTTLE,
-        FULL_THROTTLE,
+        NO_COMMAND,
+        NO_COMMAND,
+        NO_COMMAND,
+        NO_COMMAND,
     ]
     np.testing.assert_allclose(got, expected, rtol=1e-4)
     # a higher threshold waits for the stop at the line (1.25 m/s^2 needed)
-    assert commands("eco:2", row(10.0, to_line=40.0, ring_s=3.0))[0] == FULL_THROTTLE
+    assert np.isnan(commands("eco:2", row(10.0, to_line=40.0, ring_s=3.0))[0])
 
 
 def test_timed_reaches_the_line_after_the_ring_vehicle() -> None:
@@ -120,7 +120,7 @@ def test_timed_reaches_the_line_after_the_ring_vehicle() -> None:
         row(10.0, to_line=40.0),  # nothing on the ring
     )
     v_end = 80.0 / 6.0 - 10.0
-    expected = [(v_end**2 - 100.0) / 80.0, FULL_THROTTLE, -100.0 / 20.0, FULL_THROTTLE]
+    expected = [(v_end**2 - 100.0) / 80.0, NO_COMMAND, -100.0 / 20.0, NO_COMMAND]
     np.testing.assert_allclose(got, expected, rtol=1e-4)
 
 
