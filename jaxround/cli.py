@@ -726,6 +726,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=non_negative_int, default=0, help="schedule seed")
     p.add_argument("--fps", type=float, default=10.0, help="frames per second")
     p.set_defaults(func=cmd_render)
+
+    from jaxround.study.cli import add_study_parser
+
+    add_study_parser(sub)
     return parser
 
 

@@ -1,0 +1,314 @@
+"""Scripted riders over loopback: the server's delay per step under load.
+
+    jaxround study load --participants 4 --seconds 60
+
+starts ``jaxround study serve`` in a subprocess on a free port of 127.0.0.1
+with a temporary database, lets N scripted participants each drive their
+first ride at once (order counterbalanced: half at 20% AVs, half at 80%),
+each over its own WebSocket and with its own SUMO process, and reads the
+server's figures back from the database: the delay per step from the step's
+start in the ride process to the frame handed to the WebSocket (SUMO step,
+policy, frame out, relay), its phases, late steps and rides dropped (a ride
+that did not end at its time limit or with the ego's arrival).
+
+Without ``--policy`` the AVs are driven by a stand-in with random weights
+that asks for full acceleration at every step, as the trained policy does
+(README: it drives exactly like uncontrolled AVs); the work per step does
+not depend on the weights.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jaxround.config import ScenarioConfig, load_config
+from jaxround.study.settings import MAX_PARTICIPANTS_LIMIT
+from jaxround.study.storage import StudyDatabase
+from jaxround.study.telemetry import percentile
+
+#: Longest load run, seconds of riding.
+MAX_SECONDS = 600.0
+#: The scripted driver's target speed, m/s.
+TARGET_SPEED_MPS = 6.0
+#: Seconds the server gets to start and a ride to warm up.
+START_TIMEOUT_S = 120.0
+
+
+def write_standin_policy(folder: Path, cfg: ScenarioConfig) -> Path:
+    """A random policy in the exported format that always asks for full
+    acceleration (the AVs' IDM caps it), with the layout `jaxround train`
+    gives by default (configs/ppo_milan.yaml: two tanh layers of 32)."""
+    from agents.export import PolicyLayout, export_policy
+    from jaxround.observe import OBSERVATION_SIZES
+
+    observer = cfg.agent.observer
+    layout = PolicyLayout(
+        observer=observer,
+        obs_size=OBSERVATION_SIZES[observer],
+        hidden=(32, 32),
+        activation="tanh",
+        centralised=False,
+        accel_bounds=(-cfg.drivers.av.decel, cfg.drivers.av.accel),
+        scenario=cfg.name,
+        scenario_fingerprint=cfg.roads_and_drivers_fingerprint(),
+    )
+    rng = np.random.default_rng(0)
+    tree: dict[str, Any] = {"log_std": np.float32(0.0)}
+    for name, shape in layout.array_shapes().items():
+        if "/" in name:
+            layer, leaf = name.split("/")
+            tree.setdefault(layer, {})[leaf] = rng.normal(0.0, 0.1, shape)
+    tree["accel_mean"]["bias"][:] = 10.0 * cfg.drivers.av.accel
+    npz, _ = export_policy({"params": tree}, layout, folder / "standin_policy")
+    return npz
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _http(method: str, url: str, body: dict | None = None) -> tuple[int, dict]:
+    data = None if body is None else json.dumps(body).encode()
+    request = urllib.request.Request(
+        url, data=data, method=method, headers={"Content-Type": "application/json"}
+    )
+    try:
+        with urllib.request.urlopen(request, timeout=30) as response:
+            return response.status, json.loads(response.read())
+    except urllib.error.HTTPError as err:
+        return err.code, json.loads(err.read() or b"{}")
+
+
+async def scripted_ride(base: str, kind: str = "first") -> dict[str, Any]:
+    """One participant: consent, one ride driven at `TARGET_SPEED_MPS`.
+
+    Returns:
+        ``{"status", "frames", "error"}``; status is the ride's own, or
+        'busy' / 'refused' / 'lost' when the server did not let it finish.
+    """
+    import websockets
+
+    status, body = await asyncio.to_thread(
+        _http, "POST", f"{base}/api/participants", {"consent": True}
+    )
+    if status != 201:
+        return {"status": "refused", "frames": 0, "error": body}
+    pid = body["participant_id"]
+    status, ride = await asyncio.to_thread(
+        _http, "POST", f"{base}/api/rides", {"participant_id": pid, "kind": kind}
+    )
+    if status != 201:
+        return {
+            "status": "busy" if status == 503 else "refused",
+            "frames": 0,
+            "error": ride,
+        }
+    url = (
+        base.replace("http", "ws")
+        + f"/ws/rides/{ride['ride_id']}?token={ride['token']}"
+    )
+    frames, seq, sent = 0, -1, (None, None)
+    try:
+        async with websockets.connect(url, open_timeout=30) as ws:
+            async for text in ws:
+                message = json.loads(text)
+                if message["type"] == "ready":
+                    await ws.send(json.dumps({"type": "start"}))
+                elif message["type"] == "frame":
+                    frames += 1
+                    speed = message["ego"][3] if message["ego"] else 0.0
+                    pedals = _pedals(speed)
+                    if pedals != sent:
+                        seq += 1
+                        sent = pedals
+                        await ws.send(
+                            json.dumps(
+                                {
+                                    "type": "input",
+                                    "seq": seq,
+                                    "throttle": pedals[0],
+                                    "brake": pedals[1],
+                                }
+                            )
+                        )
+                elif message["type"] == "end":
+                    return {
+                        "status": message["status"],
+                        "frames": frames,
+                        "error": message.get("error"),
+                    }
+    except (OSError, websockets.exceptions.WebSocketException) as err:
+        return {"status": "lost", "frames": frames, "error": repr(err)}
+    return {"status": "lost", "frames": frames, "error": "closed without an end"}
+
+
+def _pedals(speed: float) -> tuple[float, float]:
+    """A driver who holds about `TARGET_SPEED_MPS` (pedals in steps of 0.25)."""
+    error = TARGET_SPEED_MPS - speed
+    throttle = round(min(max(error / 3.0, 0.0), 1.0) * 4) / 4
+    brake = round(min(max(-error / 6.0, 0.0), 1.0) * 4) / 4
+    return throttle, brake
+
+
+def run_load(
+    participants: int,
+    seconds: float,
+    policy: Path | None = None,
+    config: str = "milan",
+    warmup_s: float = 120.0,
+) -> dict[str, Any]:
+    """Drive `participants` scripted rides at once against a fresh server.
+
+    Returns:
+        Plain data: the rides' outcomes, the server delay per step (median,
+        p99, max, ms, over every step of every ride), the ride process's
+        share of it per phase (SUMO step, policy, frame) and late steps.
+
+    Raises:
+        ValueError: a count or duration outside its bounds.
+        RuntimeError: the server did not start.
+    """
+    if not 1 <= participants <= MAX_PARTICIPANTS_LIMIT:
+        raise ValueError(
+            f"participants: {participants}, expected 1-{MAX_PARTICIPANTS_LIMIT}"
+        )
+    if not 1.0 <= seconds <= MAX_SECONDS:
+        raise ValueError(f"seconds: {seconds}, expected 1-{MAX_SECONDS:g}")
+    cfg = load_config(config)
+    with tempfile.TemporaryDirectory(prefix="jaxround-load-") as tmp:
+        folder = Path(tmp)
+        policy = policy or write_standin_policy(folder, cfg)
+        db_path = folder / "load.sqlite"
+        port = free_port()
+        options = {
+            "--policy": policy, "--config": config, "--db": db_path, "--port": port,
+            "--max-participants": participants, "--ride-s": seconds,
+            "--warmup-s": warmup_s,
+        }  # fmt: skip
+        command = [sys.executable, "-m", "jaxround", "study", "serve"]
+        for option, value in options.items():
+            command += [option, str(value)]
+        log = (folder / "server.log").open("w")
+        server = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
+        try:
+            base = f"http://127.0.0.1:{port}"
+            _wait_for(server, base, folder / "server.log")
+            started = time.perf_counter()
+            outcomes = asyncio.run(_all_rides(base, participants))
+            wall = time.perf_counter() - started
+        finally:
+            server.terminate()
+            server.wait(timeout=30)
+            log.close()
+        database = StudyDatabase(db_path)
+        return _figures(outcomes, database, wall)
+
+
+async def _all_rides(base: str, participants: int) -> list[dict[str, Any]]:
+    return list(
+        await asyncio.gather(*(scripted_ride(base) for _ in range(participants)))
+    )
+
+
+def _wait_for(server: subprocess.Popen, base: str, log: Path) -> None:
+    deadline = time.monotonic() + START_TIMEOUT_S
+    while time.monotonic() < deadline:
+        if server.poll() is not None:
+            raise RuntimeError(f"the server stopped: {log.read_text()}")
+        try:
+            if _http("GET", f"{base}/api/study")[0] == 200:
+                return
+        except OSError:
+            time.sleep(0.2)
+    raise RuntimeError(f"the server did not answer within {START_TIMEOUT_S:g} s")
+
+
+def _figures(
+    outcomes: list[dict[str, Any]], database: StudyDatabase, wall_s: float
+) -> dict[str, Any]:
+    steps = database.rows("ride_steps")
+    rides = database.rows("rides")
+    delays = [s["delay_ms"] for s in steps if s["delay_ms"] is not None]
+    phase = {
+        k: [s[k] for s in steps if s[k] is not None]
+        for k in ("sumo_ms", "policy_ms", "frame_ms")
+    }
+    policy_steps = [
+        s["policy_ms"]
+        for s in steps
+        if s["policy_ms"] is not None and s["policy_ms"] > 0.02
+    ]
+    ok = ("arrived", "time_limit")
+    return {
+        "participants": len(outcomes),
+        "wall_s": round(wall_s, 1),
+        "rides": [{"status": o["status"], "frames": o["frames"]} for o in outcomes],
+        "rides_dropped": sum(o["status"] not in ok for o in outcomes),
+        "steps": len(delays),
+        "frames_lost": sum(
+            len(
+                [
+                    s
+                    for s in steps
+                    if s["ride_id"] == r["ride_id"] and s["delay_ms"] is None
+                ]
+            )
+            for r in rides
+        ),
+        "late_steps": sum(r["late_steps"] or 0 for r in rides),
+        "delay_ms": {
+            "median": percentile(delays, 50),
+            "p99": percentile(delays, 99),
+            "max": max(delays, default=None),
+        },
+        "phase_median_ms": {k: percentile(v, 50) for k, v in phase.items()},
+        "phase_p99_ms": {k: percentile(v, 99) for k, v in phase.items()},
+        "policy_step_ms": {
+            "median": percentile(policy_steps, 50),
+            "p99": percentile(policy_steps, 99),
+        },
+    }
+
+
+def format_figures(figures: dict[str, Any]) -> str:
+    """The figures as a few lines of text."""
+    delay = figures["delay_ms"]
+    median, p99 = figures["phase_median_ms"], figures["phase_p99_ms"]
+    policy = figures["policy_step_ms"]
+
+    def ms(x: float | None) -> str:
+        return "-" if x is None else f"{x:.2f} ms"
+
+    def phase(name: str) -> str:
+        return f"{ms(median[name])} / {ms(p99[name])}"
+
+    outcomes = ", ".join(r["status"] for r in figures["rides"])
+    return "\n".join(
+        [
+            f"{figures['participants']} scripted rides at once, "
+            f"{figures['steps']} steps ({figures['wall_s']} s)",
+            f"server delay per step: median {ms(delay['median'])}, "
+            f"p99 {ms(delay['p99'])}, max {ms(delay['max'])}",
+            f"  in the ride process, median / p99: SUMO step {phase('sumo_ms')}, "
+            f"policy {phase('policy_ms')}, frame {phase('frame_ms')}",
+            f"  steps where the policy acted: median {ms(policy['median'])}, "
+            f"p99 {ms(policy['p99'])}",
+            f"late steps: {figures['late_steps']}; frames not handed out: "
+            f"{figures['frames_lost']}; rides dropped: {figures['rides_dropped']} "
+            f"({outcomes})",
+        ]
+    )

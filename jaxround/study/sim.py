@@ -1,0 +1,352 @@
+"""One ride in SUMO: the background traffic, the policy's AVs and the ego.
+
+The ride runs the scenario's own schedule (same seed for every participant)
+with one more vehicle, the ego, inserted in the schedule at the end of the
+warm-up on its route (an arterial entry and a left-turn exit by default).
+SUMO writes it into the route file like any other vehicle
+(`sumo_export.scenario.write_scenario`), so the policy's observer
+(`sumo_export.traffic.SumoObserver`) sees it as a human driver, which it is.
+
+SUMO steps at ``step_s`` (0.1 s: 10 Hz) instead of the scenario's ``dt_s``;
+the human drivers' and AVs' action step stays 0.5 s (their vTypes' action
+step length, `sumo_export.scenario.action_step`), and the policy acts every
+``dt_s / step_s`` steps through `sumo_export.controller.PolicyController`,
+as it was trained.
+
+The participant drives the ego's longitudinal motion only: the pedals set an
+acceleration, its integral is commanded with ``vehicle.setSpeed`` and the ego
+follows its lanes (no steering). Its speed mode is 32: all of SUMO's checks
+off, right of way inside junctions included (MSVehicle's speed mode bits,
+SUMO's TraCI `setSpeedMode`), so a misjudged gap becomes a collision, which
+SUMO detects (``--collision.check-junctions``, overlap only:
+``--collision.mingap-factor 0``) and reports through
+``simulation.getCollisions``, and the other drivers react to the ego as to
+any vehicle.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jaxround.config import ScenarioConfig, load_config
+from jaxround.schedule import Schedule, make_schedule
+from sumo_export.network import route_edges
+from sumo_export.scenario import vehicle_id, write_scenario
+
+#: Ego acceleration at full throttle and deceleration at full brake, m/s^2.
+EGO_ACCEL_MPS2 = 3.0
+EGO_BRAKE_MPS2 = 8.0
+#: Deceleration with neither pedal (rolling resistance, engine braking), m/s^2.
+EGO_COAST_MPS2 = 0.4
+EGO_MAX_SPEED_MPS = 20.0
+#: The ego's speedFactor: it enters at 60% of the leg's limit (departSpeed max).
+EGO_SPEED_FACTOR = 0.6
+#: SUMO speed mode of the ego: every check off, junction right of way too.
+EGO_SPEED_MODE = 32
+#: How far ahead the vehicle ahead is looked for, m.
+LEADER_LOOKAHEAD_M = 100.0
+
+
+@dataclass(frozen=True)
+class RideSpec:
+    """What a ride process needs (picklable).
+
+    Attributes:
+        ride_id: the ride's id.
+        config: the scenario (YAML path or built-in name).
+        share: the AVs' share of the background traffic; None for the
+            practice ride (no traffic).
+        policy: the exported policy driving the AVs (None in practice).
+        seed: the schedule's seed.
+        warmup_s: simulated seconds before the ego enters.
+        ride_s: longest ride, seconds of driving.
+        step_s: SUMO's step, s.
+        ego_origin: leg index the ego enters from.
+        ego_destination: leg index it leaves at.
+    """
+
+    ride_id: str
+    config: str
+    share: float | None
+    policy: str | None
+    seed: int
+    warmup_s: float
+    ride_s: float
+    step_s: float
+    ego_origin: int
+    ego_destination: int
+
+
+def ride_schedule(
+    cfg: ScenarioConfig, spec: RideSpec
+) -> tuple[ScenarioConfig, Schedule, int]:
+    """The background schedule with the ego inserted at the end of the warm-up.
+
+    Returns:
+        (the scenario with one more vehicle, the schedule (N + 1,), the ego's
+        index). The AV count is the background's: the ego is never an AV.
+    """
+    if spec.share is None:  # practice: the ego alone
+        empty = np.zeros(0)
+        base = Schedule(
+            empty,
+            empty.astype(np.int32),
+            empty.astype(np.int32),
+            empty,
+            empty.astype(np.int32),
+            0.0,
+        )
+    else:
+        base = make_schedule(cfg, seed=spec.seed, penetration=spec.share)
+    n = base.n_vehicles
+    k = int(np.searchsorted(base.depart_s, spec.warmup_s, side="right"))
+    schedule = Schedule(
+        depart_s=np.insert(base.depart_s, k, spec.warmup_s),
+        origin=np.insert(base.origin, k, spec.ego_origin).astype(np.int32),
+        destination=np.insert(base.destination, k, spec.ego_destination).astype(
+            np.int32
+        ),
+        speed_factor=np.insert(base.speed_factor, k, EGO_SPEED_FACTOR),
+        av_rank=np.insert(base.av_rank, k, n).astype(np.int32),
+        penetration=base.n_av / (n + 1),
+    )
+    demand = dataclasses.replace(cfg.demand, n_vehicles=n + 1)
+    return dataclasses.replace(cfg, demand=demand), schedule, k
+
+
+def sumo_command(sumocfg: Path) -> list[str]:
+    """libsumo's command line for a ride: quiet, collisions as overlaps only."""
+    return [
+        "sumo",
+        "-c",
+        str(sumocfg),
+        "--no-step-log",
+        "true",
+        "--no-warnings",
+        "true",
+        "--duration-log.disable",
+        "true",
+        "--collision.mingap-factor",
+        "0",
+    ]
+
+
+def ego_acceleration(throttle: float, brake: float) -> float:
+    """The ego's acceleration for pedal positions in [0, 1], m/s^2."""
+    return EGO_ACCEL_MPS2 * throttle - EGO_BRAKE_MPS2 * brake - EGO_COAST_MPS2
+
+
+class RideSimulation:
+    """A running SUMO of one ride, in this process (libsumo: one per process).
+
+    Args:
+        spec: the ride.
+        workdir: where the scenario files are written.
+
+    Attributes:
+        trace: one dict per ride step (``ride_steps`` columns without timings).
+        events: collisions, as ``ride_events`` rows.
+        ego_entered_s, ego_arrived_s: simulated times, None until they happen.
+    """
+
+    def __init__(self, spec: RideSpec, workdir: Path) -> None:
+        import libsumo
+
+        self.libsumo = libsumo
+        self.spec = spec
+        cfg = load_config(spec.config)
+        self.cfg, self.schedule, ego_index = ride_schedule(cfg, spec)
+        self.ego_id = vehicle_id(ego_index)
+        self.ego_min_gap = cfg.drivers.hv.min_gap
+        self.policy_every = round(cfg.simulation.dt_s / spec.step_s)
+        self.controller = None
+        if spec.share is not None and spec.policy is not None:
+            from sumo_export.controller import PolicyController
+
+            self.controller = PolicyController.from_policy(
+                spec.policy, self.cfg, self.schedule
+            )
+        files = write_scenario(
+            self.cfg.with_overrides(dt_s=spec.step_s), self.schedule, workdir
+        )
+        self.net_file = files.net
+        self.route = route_edges(spec.ego_origin, spec.ego_destination, cfg.n_legs)
+        libsumo.start(sumo_command(files.sumocfg))
+        self.steps = 0
+        self.time_s = 0.0
+        self.ego_entered_s: float | None = None
+        self.ego_arrived_s: float | None = None
+        self.ego_speed = 0.0
+        self.ego_pose: tuple[float, float, float] | None = None
+        self.vehicle_ids: tuple[str, ...] = ()
+        self.trace: list[dict[str, Any]] = []
+        self.events: list[dict[str, Any]] = []
+        self._contacts: set[str] = set()
+
+    @property
+    def ego_on_road(self) -> bool:
+        return self.ego_entered_s is not None and self.ego_arrived_s is None
+
+    def warm_up(self) -> None:
+        """Step as fast as SUMO goes to just before the ego's departure."""
+        last = self.spec.warmup_s - self.spec.step_s + 1e-6
+        while self.time_s + self.spec.step_s <= last:
+            self._advance()
+
+    def step(self, throttle: float, brake: float) -> tuple[int, int]:
+        """One real-time step: command the ego, step SUMO, let the policy act.
+
+        Args:
+            throttle: pedal position in [0, 1].
+            brake: pedal position in [0, 1].
+
+        Returns:
+            (SUMO ns, policy ns): time in the SUMO step and in the controller.
+        """
+        if self.ego_on_road:
+            accel = ego_acceleration(throttle, brake)
+            speed = min(
+                max(self.ego_speed + accel * self.spec.step_s, 0.0), EGO_MAX_SPEED_MPS
+            )
+            self.libsumo.vehicle.setSpeed(self.ego_id, speed)
+        sumo_ns, policy_ns = self._advance()
+        self._read_ego(throttle, brake)
+        return sumo_ns, policy_ns
+
+    def _advance(self) -> tuple[int, int]:
+        t0 = time.perf_counter_ns()
+        self.libsumo.simulation.step()
+        self.steps += 1
+        self.time_s = self.libsumo.simulation.getTime()
+        t1 = time.perf_counter_ns()
+        if self.controller is not None and self.steps % self.policy_every == 0:
+            self.controller(self.libsumo, self.time_s)
+        return t1 - t0, time.perf_counter_ns() - t1
+
+    def _read_ego(self, throttle: float, brake: float) -> None:
+        veh = self.libsumo.vehicle
+        self.vehicle_ids = veh.getIDList()
+        row: dict[str, Any] = {
+            "time_s": round(self.time_s, 3),
+            "on_road": 0,
+            "throttle": throttle,
+            "brake": brake,
+        }
+        if self.ego_id in self.vehicle_ids:
+            if self.ego_entered_s is None:
+                self.ego_entered_s = self.time_s
+                veh.setSpeedMode(self.ego_id, EGO_SPEED_MODE)
+            x, y = veh.getPosition(self.ego_id)
+            self.ego_pose = (x, y, veh.getAngle(self.ego_id))
+            self.ego_speed = veh.getSpeed(self.ego_id)
+            row.update(
+                on_road=1,
+                x_m=x,
+                y_m=y,
+                speed_mps=self.ego_speed,
+                accel_mps2=veh.getAcceleration(self.ego_id),
+            )
+            row.update(self._gap_to_leader())
+            self._record_collisions()
+        elif self.ego_entered_s is not None and self.ego_arrived_s is None:
+            self.ego_arrived_s = self.time_s
+            self.ego_pose = None
+        self.trace.append(row)
+
+    def _gap_to_leader(self) -> dict[str, float | None]:
+        """Bumper gap to the vehicle ahead and the time to collide with it."""
+        veh = self.libsumo.vehicle
+        leader = veh.getLeader(self.ego_id, LEADER_LOOKAHEAD_M)
+        if not leader or not leader[0]:
+            return {"gap_m": None, "ttc_s": None}
+        leader_id, gap = leader
+        gap_m = gap + self.ego_min_gap  # getLeader's gap leaves minGap out
+        closing = self.ego_speed - veh.getSpeed(leader_id)
+        ttc = max(gap_m, 0.0) / closing if closing > 1e-6 else None
+        return {"gap_m": gap_m, "ttc_s": ttc}
+
+    def _record_collisions(self) -> None:
+        """A collision event when the ego first touches another vehicle."""
+        now = set()
+        for c in self.libsumo.simulation.getCollisions():
+            if self.ego_id not in (c.collider, c.victim):
+                continue
+            other = c.victim if c.collider == self.ego_id else c.collider
+            now.add(other)
+            if other not in self._contacts:
+                role = "hit" if c.collider == self.ego_id else "was hit by"
+                self.events.append(
+                    {
+                        "time_s": round(self.time_s, 3),
+                        "kind": "collision",
+                        "other": self.vehicle_class(other),
+                        "detail": f"{c.type}: the ego {role} a vehicle",
+                    }
+                )
+        self._contacts = now
+
+    def vehicle_class(self, vid: str) -> str:
+        """'hv' or 'av' for a vehicle of the schedule (the ego: 'hv')."""
+        try:
+            return "av" if self.schedule.is_av[int(vid[1:])] else "hv"
+        except (ValueError, IndexError):
+            return "unknown"
+
+    @property
+    def collisions(self) -> int:
+        return sum(e["kind"] == "collision" for e in self.events)
+
+    def frame(self, step: int, input_seq: int) -> dict[str, Any]:
+        """What the browser draws after this step (plain data).
+
+        ``cars``: flat [number, x, y, angle, ...] of the other vehicles
+        (SUMO's front-bumper position, m, and heading, degrees clockwise from
+        north); ``ego``: [x, y, angle, speed] or None before it enters and
+        after it leaves. Nothing tells an AV from a human driver.
+        """
+        veh = self.libsumo.vehicle
+        cars: list[float] = []
+        for vid in self.vehicle_ids:
+            if vid == self.ego_id:
+                continue
+            x, y = veh.getPosition(vid)
+            cars += (
+                int(vid[1:]),
+                round(x, 2),
+                round(y, 2),
+                round(veh.getAngle(vid), 1),
+            )
+        ego = None
+        if self.ego_pose is not None:
+            x, y, angle = self.ego_pose
+            ego = [round(x, 2), round(y, 2), round(angle, 1), round(self.ego_speed, 2)]
+        return {
+            "type": "frame",
+            "step": step,
+            "t": round(self.time_s, 2),
+            "seq": input_seq,
+            "ego": ego,
+            "cars": cars,
+            "collisions": self.collisions,
+        }
+
+    def ego_lanes(self) -> list[str]:
+        """The lanes of the ego's route (its roads have one lane each)."""
+        return [f"{edge}_0" for edge in self.route]
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):  # a simulation that failed to start
+            self.libsumo.close()
+
+
+def frame_bytes(frame: dict[str, Any]) -> bytes:
+    """A frame as compact JSON."""
+    return json.dumps(frame, separators=(",", ":"), allow_nan=False).encode()

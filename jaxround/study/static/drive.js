@@ -1,0 +1,253 @@
+// A ride in the browser: the WebSocket, the pedals, the driver's-eye view.
+//
+// The server sends a frame per SUMO step (10 Hz); the view is drawn at the
+// display's rate, one step behind, interpolating between the last two
+// frames. Each key press or release is sent at once with a new input number,
+// and the time until the first drawn frame that reflects it (the frame's
+// "seq" has reached it) is sent back as the input-to-frame latency.
+
+import { bonnet, buildWorld, carMesh, placeCar, placeDriverCamera, THREE } from "./scene.js";
+import { drawPedals, drawSpeedometer, Minimap } from "./hud.js";
+
+const PEDAL_PRESS_START = 0.3;   // a key press puts the pedal here at once
+const PEDAL_RISE_PER_S = 1.2;    // holding it presses harder
+const PEDAL_FALL_PER_S = 4.0;    // releasing lets go quickly
+const SEND_EVERY_MS = 50;        // pedal updates while a key is held
+const COUNTDOWN_S = 2;
+const THROTTLE_KEYS = new Set(["ArrowUp", "KeyW"]);
+const BRAKE_KEYS = new Set(["ArrowDown", "KeyS", "Space"]);
+
+function lerp(a, b, t) { return a + (b - a) * t; }
+function lerpAngle(a, b, t) { const d = ((b - a + 540) % 360) - 180; return a + d * t; }
+
+/** The view shared by every ride of a participant. */
+export class Cockpit {
+  constructor(elements, roads) {
+    this.el = elements;
+    this.roads = roads;
+    this.renderer = new THREE.WebGLRenderer({ canvas: elements.view, antialias: true,
+      preserveDrawingBuffer: true });
+    this.scene = buildWorld(roads);
+    this.camera = new THREE.PerspectiveCamera(70, 1, 0.1, 900);
+    this.camera.add(bonnet());
+    this.scene.add(this.camera);
+    this.minimap = new Minimap(elements.minimap, roads);
+    this.cars = new Map();
+    this.lanes = new Map(roads.lanes.map((l) => [l.id, l]));
+    window.addEventListener("resize", () => this.resize());
+  }
+
+  resize() {
+    const canvas = this.el.view;
+    const w = canvas.clientWidth || window.innerWidth, h = canvas.clientHeight || window.innerHeight;
+    this.renderer.setSize(w, h, false);
+    this.camera.aspect = w / h;
+    this.camera.updateProjectionMatrix();
+  }
+
+  /** Drive one ride; resolves with the server's summary at its end. */
+  ride(info, stepS) {
+    this.resize();
+    return new Ride(this, info, stepS).run();
+  }
+
+  showCars(cars) {
+    const seen = new Set();
+    for (const car of cars) {
+      let mesh = this.cars.get(car.n);
+      if (!mesh) { mesh = carMesh(car.n); this.cars.set(car.n, mesh); this.scene.add(mesh); }
+      placeCar(mesh, car.x, car.y, car.angle);
+      seen.add(car.n);
+    }
+    for (const [n, mesh] of this.cars) {
+      if (!seen.has(n)) { this.scene.remove(mesh); this.cars.delete(n); }
+    }
+  }
+
+  /** Before the ego enters: stand at the start of its first lane. */
+  entryView(laneIds) {
+    const lane = this.lanes.get(laneIds[0]);
+    if (!lane) return null;
+    const [a, b] = lane.shape;
+    const angle = (Math.atan2(b[0] - a[0], b[1] - a[1]) * 180) / Math.PI;
+    return { x: a[0], y: a[1], angle, speed: 0 };
+  }
+}
+
+class Ride {
+  constructor(cockpit, info, stepS) {
+    this.cockpit = cockpit;
+    this.info = info;
+    this.periodMs = stepS * 1000;
+    this.keys = new Set();
+    this.pedals = { throttle: 0, brake: 0 };
+    this.sent = { throttle: 0, brake: 0, at: 0 };
+    this.seq = -1;
+    this.probe = null;       // {seq, t, seenAt}: the input whose latency is measured
+    this.prev = null; this.cur = null;
+    this.started = false; this.over = false;
+    this.collisions = 0; this.egoLanes = [];
+    this.lastView = null; this.egoSeen = false;
+  }
+
+  run() {
+    return new Promise((resolve) => {
+      this.resolve = resolve;
+      const proto = location.protocol === "https:" ? "wss" : "ws";
+      const url = `${proto}://${location.host}/ws/rides/${encodeURIComponent(this.info.ride_id)}`
+        + `?token=${encodeURIComponent(this.info.token)}`;
+      this.ws = new WebSocket(url);
+      this.ws.onmessage = (event) => this.onMessage(JSON.parse(event.data));
+      this.ws.onclose = () => this.finish({ status: "error",
+        error: this.errorText || "The connection to the server was lost." });
+      this.onKey = (event) => this.key(event);
+      window.addEventListener("keydown", this.onKey);
+      window.addEventListener("keyup", this.onKey);
+      this.status("Preparing the traffic\u2026");
+      this.lastTick = performance.now();
+      requestAnimationFrame((t) => this.tick(t));
+    });
+  }
+
+  status(text) { this.cockpit.el.status.textContent = text; }
+
+  onMessage(m) {
+    if (m.type === "frame") {
+      this.prev = this.cur;
+      this.cur = { f: m, at: performance.now() };
+      if (this.probe && !this.probe.seenAt && m.seq >= this.probe.seq) this.probe.seenAt = this.cur.at;
+      if (m.collisions > this.collisions) this.flashCollision();
+      this.collisions = m.collisions;
+    } else if (m.type === "ready") {
+      this.egoLanes = m.ego_lanes;
+      this.cockpit.minimap.setRoute(m.ego_lanes);
+      this.countdown(COUNTDOWN_S);
+    } else if (m.type === "end") {
+      this.finish(m);
+    } else if (m.type === "error") {
+      this.errorText = m.message;
+    }
+  }
+
+  countdown(n) {
+    if (this.over) return;
+    if (n > 0) { this.status(`Starting in ${n}\u2026`); setTimeout(() => this.countdown(n - 1), 1000); return; }
+    this.status("");
+    this.started = true;
+    this.send({ type: "start" });
+  }
+
+  send(message) {
+    if (this.ws.readyState === WebSocket.OPEN) this.ws.send(JSON.stringify(message));
+  }
+
+  key(event) {
+    const throttle = THROTTLE_KEYS.has(event.code), brake = BRAKE_KEYS.has(event.code);
+    if (!throttle && !brake) return;
+    event.preventDefault();
+    if (event.repeat) return;
+    if (event.type === "keydown") this.keys.add(event.code); else this.keys.delete(event.code);
+    const pedal = throttle ? "throttle" : "brake";
+    this.pedals[pedal] = event.type === "keydown" ? Math.max(this.pedals[pedal], PEDAL_PRESS_START) : 0;
+    this.sendPedals(true);
+  }
+
+  sendPedals(probe) {
+    if (!this.started || this.over) return;
+    this.seq += 1;
+    const now = performance.now();
+    this.send({ type: "input", seq: this.seq, throttle: this.pedals.throttle, brake: this.pedals.brake });
+    this.sent = { throttle: this.pedals.throttle, brake: this.pedals.brake, at: now };
+    if (probe) this.probe = { seq: this.seq, t: now, seenAt: null };
+  }
+
+  updatePedals(dt) {
+    const held = (set) => [...this.keys].some((k) => set.has(k));
+    for (const [pedal, set] of [["throttle", THROTTLE_KEYS], ["brake", BRAKE_KEYS]]) {
+      const v = this.pedals[pedal];
+      this.pedals[pedal] = held(set) ? Math.min(1, Math.max(v, PEDAL_PRESS_START) + PEDAL_RISE_PER_S * dt)
+        : Math.max(0, v - PEDAL_FALL_PER_S * dt);
+    }
+    const pads = navigator.getGamepads ? navigator.getGamepads() : [];
+    for (const pad of pads) {
+      if (!pad || pad.mapping !== "standard") continue;
+      this.pedals.throttle = Math.max(this.pedals.throttle, pad.buttons[7]?.value || 0);
+      this.pedals.brake = Math.max(this.pedals.brake, pad.buttons[6]?.value || 0);
+    }
+    const moved = Math.abs(this.pedals.throttle - this.sent.throttle) > 0.02
+      || Math.abs(this.pedals.brake - this.sent.brake) > 0.02;
+    if (moved && performance.now() - this.sent.at >= SEND_EVERY_MS) this.sendPedals(false);
+  }
+
+  /** The cars and the ego at the display's time, one step behind the last frame. */
+  interpolated(now) {
+    const cur = this.cur.f;
+    const t = this.prev ? Math.min(1, (now - this.cur.at) / this.periodMs) : 1;
+    const before = new Map();
+    const prev = this.prev ? this.prev.f : cur;
+    for (let i = 0; i < prev.cars.length; i += 4) before.set(prev.cars[i], i);
+    const cars = [];
+    for (let i = 0; i < cur.cars.length; i += 4) {
+      const n = cur.cars[i], j = before.get(n);
+      const [x, y, a] = [cur.cars[i + 1], cur.cars[i + 2], cur.cars[i + 3]];
+      if (j === undefined) { cars.push({ n, x, y, angle: a }); continue; }
+      cars.push({ n, x: lerp(prev.cars[j + 1], x, t), y: lerp(prev.cars[j + 2], y, t),
+        angle: lerpAngle(prev.cars[j + 3], a, t) });
+    }
+    let ego = null;
+    if (cur.ego) {
+      const [x, y, a, v] = cur.ego;
+      ego = { x, y, angle: a, speed: v };
+      if (prev.ego) {
+        const [px, py, pa, pv] = prev.ego;
+        ego = { x: lerp(px, x, t), y: lerp(py, y, t), angle: lerpAngle(pa, a, t), speed: lerp(pv, v, t) };
+      }
+    }
+    return { cars, ego };
+  }
+
+  tick(now) {
+    if (this.over) return;
+    const dt = Math.min(0.1, (now - this.lastTick) / 1000);
+    this.lastTick = now;
+    this.updatePedals(dt);
+    const c = this.cockpit;
+    let cars = [], ego = null;
+    if (this.cur) ({ cars, ego } = this.interpolated(now));
+    c.showCars(cars);
+    if (ego) this.egoSeen = true;
+    const view = ego || (this.egoSeen ? this.lastView : c.entryView(this.egoLanes));
+    if (view) { placeDriverCamera(c.camera, view.x, view.y, view.angle); this.lastView = view; }
+    c.renderer.render(c.scene, c.camera);
+    drawSpeedometer(c.el.speedometer, ego ? ego.speed : 0);
+    drawPedals(c.el.throttleBar, c.el.brakeBar, this.pedals.throttle, this.pedals.brake);
+    c.minimap.draw(cars, ego);
+    if (this.started && this.cur) {
+      const left = Math.max(0, this.info.ride_s - (this.cur.f.step + 1) * this.periodMs / 1000);
+      const waiting = !this.egoSeen;
+      this.status(waiting ? "Waiting to enter the road\u2026" : `${Math.ceil(left)} s left`);
+    }
+    if (this.probe && this.probe.seenAt) {
+      this.send({ type: "latency", seq: this.probe.seq, ms: Math.min(60000, now - this.probe.t) });
+      this.probe = null;
+    }
+    requestAnimationFrame((t) => this.tick(t));
+  }
+
+  flashCollision() {
+    const flash = this.cockpit.el.collision;
+    flash.hidden = false;
+    clearTimeout(this.flashTimer);
+    this.flashTimer = setTimeout(() => { flash.hidden = true; }, 1500);
+  }
+
+  finish(summary) {
+    if (this.over) return;
+    this.over = true;
+    window.removeEventListener("keydown", this.onKey);
+    window.removeEventListener("keyup", this.onKey);
+    this.ws.onclose = null;
+    if (this.ws.readyState === WebSocket.OPEN) this.ws.close(1000);
+    this.resolve(summary);
+  }
+}

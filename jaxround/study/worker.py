@@ -1,0 +1,204 @@
+"""The process that runs one ride in real time (libsumo: one ride per process).
+
+It talks to the server over a `multiprocessing` pipe, in bytes:
+
+- to the server: ``R`` + JSON when the warm-up is done (the ego's lanes);
+  ``F`` + the step's start (``perf_counter_ns``, 8 bytes, big-endian) +
+  the step number (4 bytes) + the frame's JSON, once per step; ``E`` + JSON,
+  the ride's record for `jaxround.study.storage.StudyDatabase.save_ride`,
+  last;
+- from the server: JSON ``{"type": "start"}``, ``{"type": "input", "seq",
+  "throttle", "brake"}`` (checked by the server) and ``{"type": "stop",
+  "reason"}``.
+
+A step is: the latest pedals, SUMO's step (and the policy's every
+``dt_s / step_s`` steps), the frame sent. Steps start on a fixed real-time
+grid; a step that starts more than a step late moves the grid and is counted
+in ``late_steps``. The ride ends when the ego leaves the network, at its time
+limit, when the server says stop, or when the server is gone (the pipe
+closes), and the process then exits.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+import tempfile
+import time
+from multiprocessing.connection import Connection
+from pathlib import Path
+from typing import Any
+
+from jaxround.study.sim import RideSimulation, RideSpec, frame_bytes
+from jaxround.study.storage import utc_now
+from jaxround.study.telemetry import hard_brakings, summarize
+
+#: Header of a frame message: step start (ns) and step number.
+FRAME_HEADER = struct.Struct(">qI")
+
+
+class ServerGoneError(Exception):
+    """The pipe to the server closed."""
+
+
+def ride_process(conn: Connection, spec: RideSpec, connect_timeout_s: float) -> None:
+    """The ride process's entry point: warm up, wait for start, drive, report."""
+    started = utc_now()
+    record: dict[str, Any] = {"status": "error", "error": None, "summary": {}}
+    sim = None
+    try:
+        with tempfile.TemporaryDirectory(prefix="jaxround-ride-") as tmp:
+            try:
+                if spec.share is not None:
+                    _prepare_jax()
+                sim = RideSimulation(spec, Path(tmp))
+                sim.warm_up()
+            except Exception as err:  # a ride that cannot start says why
+                record["error"] = f"the ride could not start: {err!r}"
+            else:
+                conn.send_bytes(
+                    b"R" + json.dumps({"ego_lanes": sim.ego_lanes()}).encode()
+                )
+                record = drive(conn, sim, spec, connect_timeout_s)
+            conn.send_bytes(
+                b"E" + json.dumps(ride_record(spec, sim, record, started)).encode()
+            )
+    except (ServerGoneError, EOFError, OSError):
+        pass  # nobody left to tell
+    finally:
+        if sim is not None:
+            sim.close()
+        conn.close()
+
+
+def drive(
+    conn: Connection, sim: RideSimulation, spec: RideSpec, connect_timeout_s: float
+) -> dict[str, Any]:
+    """Wait for the browser's start, then step in real time until the ride ends.
+
+    Returns:
+        ``{"status", "error", "late_steps"}``.
+    """
+    deadline = time.monotonic() + connect_timeout_s
+    while True:
+        remaining = deadline - time.monotonic()
+        if remaining <= 0 or not conn.poll(remaining):
+            return {
+                "status": "not_started",
+                "error": "the browser did not start it",
+                "late_steps": 0,
+            }
+        message = _receive(conn)
+        if message["type"] == "start":
+            break
+        if message["type"] == "stop":
+            return {
+                "status": message.get("reason", "abandoned"),
+                "error": None,
+                "late_steps": 0,
+            }
+    pedals = {"throttle": 0.0, "brake": 0.0, "seq": -1}
+    period_ns = round(spec.step_s * 1e9)
+    n_steps = round(spec.ride_s / spec.step_s)
+    late = 0
+    next_ns = time.perf_counter_ns()
+    for step in range(n_steps):
+        stop = _wait_until(conn, next_ns, pedals)
+        if stop is not None:
+            return {"status": stop, "error": None, "late_steps": late}
+        t0 = time.perf_counter_ns()
+        if t0 - next_ns > period_ns:
+            late += 1
+            next_ns = t0
+        sumo_ns, policy_ns = sim.step(pedals["throttle"], pedals["brake"])
+        frame = frame_bytes(sim.frame(step, pedals["seq"]))
+        conn.send_bytes(b"F" + FRAME_HEADER.pack(t0, step) + frame)
+        frame_ns = time.perf_counter_ns() - t0 - sumo_ns - policy_ns
+        sim.trace[-1].update(
+            step=step,
+            sumo_ms=sumo_ns / 1e6,
+            policy_ms=policy_ns / 1e6,
+            frame_ms=frame_ns / 1e6,
+        )
+        if sim.ego_arrived_s is not None:
+            return {"status": "arrived", "error": None, "late_steps": late}
+        next_ns += period_ns
+    return {"status": "time_limit", "error": None, "late_steps": late}
+
+
+def _wait_until(conn: Connection, until_ns: int, pedals: dict[str, Any]) -> str | None:
+    """Take the server's messages until `until_ns`; a stop's reason, or None."""
+    while True:
+        remaining = (until_ns - time.perf_counter_ns()) / 1e9
+        if not conn.poll(max(remaining, 0.0)):
+            return None
+        message = _receive(conn)
+        if message["type"] == "input":
+            pedals.update(
+                throttle=min(max(float(message["throttle"]), 0.0), 1.0),
+                brake=min(max(float(message["brake"]), 0.0), 1.0),
+                seq=int(message["seq"]),
+            )
+        elif message["type"] == "stop":
+            return str(message.get("reason", "abandoned"))
+
+
+def _receive(conn: Connection) -> dict[str, Any]:
+    try:
+        return json.loads(conn.recv_bytes())
+    except EOFError:
+        raise ServerGoneError() from None
+
+
+def ride_record(
+    spec: RideSpec,
+    sim: RideSimulation | None,
+    outcome: dict[str, Any],
+    started_utc: str,
+) -> dict[str, Any]:
+    """The record the server stores (`StudyDatabase.save_ride` without the
+    server's own figures)."""
+    ride = {
+        "ride_id": spec.ride_id,
+        "share": spec.share or 0.0,
+        "seed": spec.seed,
+        "warmup_s": spec.warmup_s,
+        "step_s": spec.step_s,
+        "status": outcome["status"],
+        "error": outcome.get("error"),
+        "started_utc": started_utc,
+        "ended_utc": utc_now(),
+    }
+    if sim is None:
+        return {"ride": ride, "steps": [], "events": []}
+    steps = [row for row in sim.trace if "step" in row]
+    events = sorted(sim.events + hard_brakings(steps), key=lambda e: e["time_s"])
+    ride.update(
+        summarize(
+            steps,
+            events,
+            sim.ego_entered_s,
+            sim.ego_arrived_s,
+            outcome.get("late_steps", 0),
+        )
+    )
+    return {"ride": ride, "steps": steps, "events": events}
+
+
+def _prepare_jax() -> None:
+    """JAX on the calling thread, compiled programs kept between rides.
+
+    The controller's observer is compiled in every ride process; the
+    persistent cache (``$XDG_CACHE_HOME/jaxround/xla``, the folder the CLI
+    uses) turns a ride's start from seconds of compiling into loading.
+    """
+    import jax
+
+    from sumo_export.traffic import synchronous_cpu_dispatch
+
+    synchronous_cpu_dispatch()
+    if not jax.config.jax_compilation_cache_dir:
+        cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
+        jax.config.update("jax_compilation_cache_dir", str(cache / "jaxround" / "xla"))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)

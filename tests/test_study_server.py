@@ -1,0 +1,312 @@
+"""The study server against bad input: each gets a clear error or a clean end,
+the ride's SUMO process is reaped, and nothing else is disturbed.
+
+The server runs in this process (uvicorn in a thread) on a free port of
+127.0.0.1; practice rides (SUMO without traffic) keep the rides quick.
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+import threading
+import time
+import urllib.error
+import urllib.request
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import pytest
+import uvicorn
+from fastapi import FastAPI
+from websockets.exceptions import ConnectionClosed
+from websockets.sync.client import ClientConnection, connect
+
+from jaxround.config import load_config
+from jaxround.study.load import free_port, write_standin_policy
+from jaxround.study.protocol import MAX_MESSAGE_BYTES, MAX_MESSAGES_PER_S
+from jaxround.study.server import create_app
+from jaxround.study.settings import StudySettings
+from jaxround.study.storage import StudyDatabase
+
+pytestmark = pytest.mark.sumo
+
+ADMIN = "admin-token-for-tests"
+PRACTICE_S = 4.0
+STEP_S = 0.1
+
+
+@dataclass
+class Server:
+    base: str
+    app: FastAPI
+    database: StudyDatabase
+
+    def http(self, method: str, path: str, body: Any = None,
+             headers: dict | None = None) -> tuple[int, Any]:  # fmt: skip
+        data = None if body is None else json.dumps(body).encode()
+        request = urllib.request.Request(
+            self.base + path, data=data, method=method,
+            headers={"Content-Type": "application/json", **(headers or {})},
+        )  # fmt: skip
+        try:
+            with urllib.request.urlopen(request, timeout=30) as response:
+                text = response.read().decode()
+                status = response.status
+        except urllib.error.HTTPError as err:
+            text, status = err.read().decode(), err.code
+        try:
+            return status, json.loads(text)
+        except json.JSONDecodeError:
+            return status, text
+
+    def participant(self) -> str:
+        status, body = self.http("POST", "/api/participants", {"consent": True})
+        assert status == 201
+        return body["participant_id"]
+
+    def ride(self, pid: str | None = None) -> dict[str, Any]:
+        body = {"participant_id": pid or self.participant(), "kind": "practice"}
+        status, ride = self.http("POST", "/api/rides", body)
+        assert status == 201, ride
+        return ride
+
+    def socket(
+        self, ride: dict[str, Any], token: str | None = None
+    ) -> ClientConnection:
+        url = self.base.replace("http", "ws") + f"/ws/rides/{ride['ride_id']}"
+        return connect(f"{url}?token={token or ride['token']}", max_size=2**22)
+
+    def stored_ride(self, ride_id: str, timeout_s: float = 20.0) -> dict[str, Any]:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            rows = self.database.rows("rides", "WHERE ride_id = ?", (ride_id,))
+            if rows:
+                return rows[0]
+            time.sleep(0.1)
+        raise AssertionError(f"ride {ride_id} was not stored within {timeout_s} s")
+
+    def process(self, ride: dict[str, Any]) -> Any:
+        return self.app.state.manager.rides[ride["ride_id"]].process
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
+    folder = tmp_path_factory.mktemp("study")
+    cfg = load_config("milan")
+    settings = StudySettings(
+        policy=write_standin_policy(folder, cfg), max_participants=2,
+        practice_s=PRACTICE_S, ride_s=PRACTICE_S, warmup_s=10.0,
+        connect_timeout_s=30.0,
+    )  # fmt: skip
+    settings.validate(cfg)
+    database = StudyDatabase(folder / "study.sqlite")
+    app = create_app(settings, database, ADMIN)
+    port = free_port()
+    config = uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning",
+                            ws_max_size=MAX_MESSAGE_BYTES)  # fmt: skip
+    uv = uvicorn.Server(config)
+    thread = threading.Thread(target=uv.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 30
+    while not uv.started and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert uv.started
+    yield Server(f"http://127.0.0.1:{port}", app, database)
+    uv.should_exit = True
+    thread.join(60)
+
+
+@pytest.fixture(autouse=True)
+def all_places_free(server: Server) -> None:
+    """Each test starts when the rides of the one before are reaped."""
+    deadline = time.monotonic() + 30
+    while server.app.state.manager.rides:
+        assert time.monotonic() < deadline, "a ride was never reaped"
+        time.sleep(0.05)
+
+
+def until(ws: ClientConnection, kind: str) -> dict[str, Any]:
+    """Messages until one of this type."""
+    while True:
+        message = json.loads(ws.recv(timeout=60))
+        if message["type"] == kind:
+            return message
+
+
+def drive_to_end(ws: ClientConnection) -> tuple[int, dict[str, Any]]:
+    """Frames until the end message: (frames, end)."""
+    frames = 0
+    while True:
+        message = json.loads(ws.recv(timeout=30))
+        if message["type"] == "end":
+            return frames, message
+        frames += message["type"] == "frame"
+
+
+def reaped(process: Any, timeout_s: float = 15.0) -> bool:
+    process.join(timeout_s)
+    return not process.is_alive()
+
+
+def test_answers_and_forms_are_checked_before_anything_is_stored(
+    server: Server,
+) -> None:
+    pid = server.participant()
+    path = f"/api/participants/{pid}/answers"
+    status, body = server.http("POST", path, {"question": "speed", "option": 1})
+    assert status == 422 and "question" in json.dumps(body)
+    status, body = server.http("POST", path, {"question": "safety", "option": 7})
+    assert status == 422 and "option" in json.dumps(body)
+    status, body = server.http("POST", path, {"question": "safety", "option": 1,
+                                              "comment": "x"})  # fmt: skip
+    assert status == 422 and "comment" in json.dumps(body)
+    status, body = server.http("POST", "/api/participants/nobody00/answers",
+                               {"question": "safety", "option": 1})  # fmt: skip
+    assert status == 404 and "no participant" in body["detail"]
+    status, _ = server.http("POST", "/api/participants/../../etc/answers",
+                            {"question": "safety", "option": 1})  # fmt: skip
+    assert status in (404, 422)
+    assert server.http("POST", path, {"question": "safety", "option": 1})[0] == 201
+    status, body = server.http("POST", path, {"question": "safety", "option": 3})
+    assert status == 409 and "answered already" in body["detail"]
+    status, _ = server.http("POST", f"/api/participants/{pid}/demographics",
+                            {"age": 3})  # fmt: skip
+    assert status == 422
+    assert server.http("POST", "/api/participants", {"consent": False})[0] == 422
+    rows = server.database.rows("answers", "WHERE participant_id = ?", (pid,))
+    assert [(r["question"], r["option_shown"]) for r in rows] == [("safety", 1)]
+
+
+def test_a_malformed_message_ends_the_ride_with_a_named_error(server: Server) -> None:
+    ride = server.ride()
+    process = server.process(ride)
+    with server.socket(ride) as ws:
+        until(ws, "ready")
+        ws.send("{oops")
+        error = until(ws, "error")
+        assert "not JSON" in error["message"]
+        with pytest.raises(ConnectionClosed) as closed:
+            ws.recv(timeout=10)
+    assert closed.value.rcvd.code == 1008
+    assert server.stored_ride(ride["ride_id"])["status"] == "bad_message"
+    assert reaped(process)
+
+
+def test_an_oversized_message_closes_the_socket_and_reaps_the_ride(
+    server: Server,
+) -> None:
+    ride = server.ride()
+    process = server.process(ride)
+    with server.socket(ride) as ws:
+        until(ws, "ready")
+        ws.send(json.dumps({"type": "start", "pad": "x" * 4 * MAX_MESSAGE_BYTES}))
+        with pytest.raises(ConnectionClosed) as closed:
+            while True:
+                ws.recv(timeout=10)
+    assert closed.value.rcvd.code == 1009  # message too big
+    assert server.stored_ride(ride["ride_id"])["status"] == "bad_message"
+    assert reaped(process)
+
+
+def test_a_flood_of_messages_ends_the_ride(server: Server) -> None:
+    ride = server.ride()
+    process = server.process(ride)
+    with server.socket(ride) as ws:
+        until(ws, "ready")
+        ws.send(json.dumps({"type": "start"}))
+        for seq in range(3 * MAX_MESSAGES_PER_S):
+            ws.send(json.dumps({"type": "input", "seq": seq, "throttle": 1.0,
+                                "brake": 0.0}))  # fmt: skip
+        error = until(ws, "error")
+    assert f"more than {MAX_MESSAGES_PER_S} messages a second" in error["message"]
+    assert server.stored_ride(ride["ride_id"])["status"] == "bad_message"
+    assert reaped(process)
+
+
+def test_a_second_connection_is_refused_and_the_first_rides_on(server: Server) -> None:
+    ride = server.ride()
+    with server.socket(ride) as first:
+        until(first, "ready")
+        first.send(json.dumps({"type": "start"}))
+        with server.socket(ride) as second:
+            error = until(second, "error")
+            assert "another window" in error["message"]
+            with pytest.raises(ConnectionClosed) as closed:
+                second.recv(timeout=10)
+            assert closed.value.rcvd.code == 4409
+        frames, end = drive_to_end(first)
+    assert end["status"] == "time_limit"
+    assert frames >= PRACTICE_S / STEP_S - 2
+    stored = server.stored_ride(ride["ride_id"])
+    assert (stored["status"], stored["steps"]) == ("time_limit", PRACTICE_S / STEP_S)
+
+
+def test_a_browser_that_disappears_ends_its_ride_only(server: Server) -> None:
+    gone, staying = server.ride(), server.ride()
+    gone_process = server.process(gone)
+    with server.socket(staying) as ws_staying, server.socket(gone) as ws_gone:
+        for ws in (ws_gone, ws_staying):
+            until(ws, "ready")
+            ws.send(json.dumps({"type": "start"}))
+        until(ws_gone, "frame")
+        ws_gone.socket.shutdown(socket.SHUT_RDWR)  # no closing handshake
+        ws_gone.socket.close()
+        assert server.stored_ride(gone["ride_id"])["status"] == "abandoned"
+        assert reaped(gone_process)
+        frames, end = drive_to_end(ws_staying)
+    assert end["status"] == "time_limit"
+    stored = server.stored_ride(staying["ride_id"])
+    assert stored["steps"] == PRACTICE_S / STEP_S and stored["late_steps"] == 0
+
+
+def test_the_next_participant_gets_the_busy_message(server: Server) -> None:
+    taken = [server.ride(), server.ride()]
+    status, body = server.http("POST", "/api/rides",
+                               {"participant_id": server.participant(),
+                                "kind": "practice"})  # fmt: skip
+    assert status == 503 and body["busy"]
+    assert "All 2 driving places are taken" in body["detail"]
+    assert server.http("GET", "/api/study")[1]["places_free"] == 0
+    for ride in taken:  # leaving frees the places
+        with server.socket(ride) as ws:
+            until(ws, "ready")
+        server.stored_ride(ride["ride_id"])
+    deadline = time.monotonic() + 20
+    while server.http("GET", "/api/study")[1]["places_free"] < 2:
+        assert time.monotonic() < deadline
+        time.sleep(0.1)
+
+
+def test_unknown_rides_and_admin_pages_without_the_token_are_refused(
+    server: Server,
+) -> None:
+    with server.socket({"ride_id": "no-such-ride", "token": "x"}) as ws:
+        assert "no ride" in until(ws, "error")["message"]
+        with pytest.raises(ConnectionClosed) as closed:
+            ws.recv(timeout=10)
+    assert closed.value.rcvd.code == 4404
+    assert server.http("GET", "/admin/report")[0] == 401
+    assert server.http("GET", "/admin/report", headers={
+        "Authorization": "Bearer wrong"})[0] == 401  # fmt: skip
+    bearer = {"Authorization": f"Bearer {ADMIN}"}
+    status, report = server.http("GET", "/admin/report", headers=bearer)
+    assert status == 200 and set(report["tables"]) == {"smoothness", "safety",
+                                                        "preference"}  # fmt: skip
+    status, text = server.http("GET", f"/admin/export/answers.csv?token={ADMIN}")
+    assert status == 200 and text.startswith("participant_id,question")
+    assert (
+        server.http("GET", f"/admin/export/sqlite_master.csv?token={ADMIN}")[0] == 404
+    )
+
+
+def test_the_page_and_its_scripts_come_from_the_server(server: Server) -> None:
+    status, page = server.http("GET", "/")
+    assert status == 200 and "/static/app.js" in page
+    status, three = server.http("GET", "/static/vendor/three/three.module.js")
+    assert status == 200 and "three.core.js" in three
+    assert server.http("GET", "/static/../server.py")[0] == 404
+    status, roads = server.http("GET", "/api/roads")
+    lanes = {lane["id"] for lane in roads["lanes"]}
+    assert {"in_0_0", "ring_0_0", "out_3_0"} <= lanes
