@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxround.network import CompiledNetwork
+from jaxround.reductions import first_min
 
 #: Far away (m).
 FAR = 1e6
@@ -262,10 +263,9 @@ def leaders(
         & ~jnp.isnan(ahead)
         & ((ahead > 0) | ((ahead == 0) & slot_order))
     )
-    dist = jnp.where(ok, ahead, jnp.inf)
-    leader = jnp.argmin(dist, axis=1)
-    has = jnp.isfinite(jnp.min(dist, axis=1))
-    gap = jnp.where(has, jnp.min(dist, axis=1) - length, FAR)
+    nearest, leader = first_min(jnp.where(ok, ahead, jnp.inf), axis=1)
+    has = jnp.isfinite(nearest)
+    gap = jnp.where(has, nearest - length, FAR)
     return jnp.where(has, leader, -1), gap
 
 

@@ -26,6 +26,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxround.geometry import NetArrays, leaders, locate, project
+from jaxround.reductions import first_min
 from jaxround.state import EnvParams, EnvState
 
 #: Position of a missing neighbour (positions are otherwise in [0, 1]).
@@ -64,16 +65,13 @@ def paper_observation(
         & ~jnp.isnan(behind)
         & (behind >= 0)
     )
-    dist = jnp.where(ok, behind, jnp.inf)
-    follower = jnp.argmin(dist, axis=1)
-    has_follower = jnp.isfinite(jnp.min(dist, axis=1))
+    nearest_behind, follower = first_min(jnp.where(ok, behind, jnp.inf), axis=1)
+    has_follower = jnp.isfinite(nearest_behind)
     has_leader = leader >= 0
     lead = jnp.maximum(leader, 0)
     a = state.accel
     x_front = jnp.where(has_leader, state.pos + gap + params.length, 0.0)
-    x_back = jnp.where(
-        has_follower, state.pos - params.length - jnp.min(dist, axis=1), 0.0
-    )
+    x_back = jnp.where(has_follower, state.pos - params.length - nearest_behind, 0.0)
     none = jnp.zeros(m)
     obs = jnp.stack(
         [
