@@ -26,6 +26,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxround.geometry import NetArrays, leaders, locate, project
+from jaxround.neighbours import soonest_ring_arrival
 from jaxround.reductions import first_min
 from jaxround.state import EnvParams, EnvState
 
@@ -53,7 +54,9 @@ def paper_observation(
     x_max = jnp.max(net.route_length)
     a_max = params.av_accel
     _, lane, pos_on_lane = locate(net, state.route, state.pos)
-    front = project(net, state.route, lane, pos_on_lane)  # (M, M)
+    routes = jnp.arange(net.route_length.shape[0])
+    # every front along every route (R, M), read along each vehicle's route
+    front = project(net, routes, lane, pos_on_lane)[state.route]  # (M, M)
     leader, gap = leaders(front, state.pos, state.active, params.length)
     # the follower: the nearest front behind this vehicle's back on its route
     behind = state.pos[:, None] - params.length - front  # (M, M)
@@ -111,19 +114,9 @@ def rich_observation(
     # how soon the ring traffic upstream reaches this vehicle's entry: each
     # vehicle's distance to the ring's point level with the entry over its
     # speed (at least 1 m/s); from positions only, so SUMO gives the same
-    c_off = net.conflict_offset[state.route][:, origin].T  # (M_i, M_j)
-    dist = c_off - state.pos[None, :]
-    m = state.pos.shape[0]
-    coming = (
-        state.active[None, :]
-        & ~jnp.isnan(dist)
-        & (dist > 0)
-        & (jnp.arange(m)[None, :] != jnp.arange(m)[:, None])
+    soonest = soonest_ring_arrival(
+        net, state.route, state.pos, state.speed, state.active, origin
     )
-    # dist is nan off the route: divide only where coming (finite gradients)
-    dist = jnp.where(coming, dist, 0.0)
-    eta = jnp.where(coming, dist / jnp.maximum(state.speed[None, :], 1.0), jnp.inf)
-    soonest = jnp.min(eta, axis=1)
     legs_to_exit = (route_destination[state.route] - origin) % g
     extra = jnp.stack(
         [
