@@ -2,7 +2,8 @@
 
 A ring road of M vehicle slots, of which a share is occupied; each step every
 vehicle finds its leader by the same kind of masked pairwise search the
-environment uses (nearest vehicle ahead, (M, M)), takes one SUMO IDM update
+environment uses (nearest vehicle ahead, (M, M), reduced by
+`jaxround.reductions.first_min`), takes one SUMO IDM update
 (`jaxround.idm.idm_follow_speed`, with the environment's sub-steps) and moves
 (Euler). No junction, no look-ahead over lanes, no insertion, no emissions.
 
@@ -23,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxround import idm
+from jaxround.reductions import first_min
 
 #: (pos, speed, active) of the ring's slots, float (M,), float (M,), bool (M,).
 RingState = tuple[jax.Array, jax.Array, jax.Array]
@@ -45,8 +47,8 @@ def bare_step(state: RingState, dt: float, n_substeps: int) -> RingState:
     pos, v, active = state
     ahead = (pos[None, :] - pos[:, None]) % RING_M  # (M, M)
     ahead = jnp.where(active[None, :] & (ahead > 0), ahead, jnp.inf)
-    leader = jnp.argmin(ahead, axis=1)
-    gap = jnp.min(ahead, axis=1) - LENGTH_M
+    nearest, leader = first_min(ahead, axis=1)
+    gap = nearest - LENGTH_M
     gap = jnp.where(jnp.isfinite(gap), gap, 1e3)
     v_next = idm.idm_follow_speed(
         v, v[leader], gap, V0, ACCEL, DECEL, TAU, MIN_GAP, DELTA, dt, n_substeps

@@ -15,14 +15,7 @@ import jax.numpy as jnp
 
 from jaxround import command as traci
 from jaxround import idm
-from jaxround.geometry import (
-    NetArrays,
-    back_projection,
-    leaders,
-    link_leaders,
-    locate,
-    project,
-)
+from jaxround.geometry import NetArrays, leaders, locate
 from jaxround.insertion import STOP_OFFSET
 from jaxround.junction import (
     brake_gap,
@@ -32,6 +25,7 @@ from jaxround.junction import (
     entry_candidates,
     register,
 )
+from jaxround.neighbours import NeighbourTables, build_tables, link_leader, rearmost_on
 from jaxround.relax import blend, soft_or
 from jaxround.state import EnvParams, Registrations
 
@@ -43,35 +37,6 @@ ENTRY_CANDIDATES = 2
 DEPART_OFFSET = 0.1
 #: A vehicle arrives when its front is this close to the end of its route (m).
 ARRIVAL_EPS = 0.1
-
-
-def _rearmost_on(
-    front: jax.Array,
-    back: jax.Array,
-    pos: jax.Array,
-    active: jax.Array,
-    seg_start: jax.Array,
-    seg_end: jax.Array,
-) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """The rearmost vehicle with any part on [seg_start, seg_end) of each
-    vehicle's route, ahead of it (SUMO's getLastVehicleInformation of a lane).
-
-    Args: front, back (M_i, M_j) projections; seg_start, seg_end (M_i, S).
-    Returns: (has, j, gap) (M_i, S): gap bumper to bumper.
-    """
-    m = pos.shape[0]
-    others = jnp.arange(m)[None, :] != jnp.arange(m)[:, None]
-    ok = active[None, :] & active[:, None] & others & (front > pos[:, None])
-    ok = ok & ~jnp.isnan(front)
-    touch = (
-        ok[:, :, None]
-        & (front[:, :, None] > seg_start[:, None, :])
-        & (back[:, :, None] < seg_end[:, None, :])
-    )  # (M_i, M_j, S)
-    b = jnp.where(touch, back[:, :, None], jnp.inf)
-    j = jnp.argmin(b, axis=1)
-    bmin = jnp.min(b, axis=1)
-    return jnp.isfinite(bmin), j, bmin - pos[:, None]
 
 
 def link_leader_speed(
@@ -88,6 +53,8 @@ def link_leader_speed(
     n_substeps: int,
     action_step: float,
     km_fixed: int | jax.Array | None = None,
+    *,
+    tables: NeighbourTables,
 ) -> tuple[jax.Array, jax.Array]:
     """The speed the link leaders at one merge allow (SUMO's checkLinkLeader).
 
@@ -100,20 +67,16 @@ def link_leader_speed(
         may_drive_to_line: bool (M,) the vehicle is before its yield line and
             this is its entry's merge.
         km_fixed: the route lane index of the merge; default the next merge.
+        tables: the step's `NeighbourTables`.
 
     Returns:
         (v, to_link): float (M,) the allowed speed (inf without link leader),
         float (M,) distance to the start of the merging lane.
     """
     p = params
-    is_link, gap, front_on_q, to_link = link_leaders(
-        net, route, pos, active, p.length, p.min_gap, km_fixed=km_fixed
-    )
-    gap = jnp.where(is_link, gap, jnp.inf)
-    nearest = jnp.argmin(gap, axis=1)  # (M,)
-    has = jnp.isfinite(jnp.min(gap, axis=1))
-    gap = jnp.where(has, jnp.min(gap, axis=1), 0.0)
-    front_on_q = jnp.take_along_axis(front_on_q, nearest[:, None], 1)[:, 0]
+    lead = link_leader(net, tables, route, pos, active, p.min_gap, km_fixed=km_fixed)
+    has, nearest, front_on_q, to_link = lead.has, lead.slot, lead.front_on, lead.to_link
+    gap = jnp.where(has, lead.gap, 0.0)
     v = idm.idm_follow_speed(
         speed, speed[nearest], gap + p.min_gap, v_lane, p.accel, p.decel, p.tau,
         p.min_gap, p.delta, dt, n_substeps,
@@ -174,10 +137,8 @@ def planned_speed(
 
     # 1. the leader on the vehicle's own lanes (any part of it ahead), and
     #    the link leaders merging in at the next merge
-    front = project(net, route, lane, pos_on_lane)  # (M, M)
-    back = back_projection(net, route, pos, p.length)  # (M, M)
-    back = jnp.where(jnp.isnan(back), front - p.length, back)
-    leader, gap = leaders(back + p.length, pos, active, p.length)
+    tables = build_tables(net, route, pos, active, p.length)  # (R, M) and more
+    leader, gap = leaders((tables.back + p.length)[route], pos, active, p.length)
     v_leader = jnp.where(leader >= 0, speed[jnp.maximum(leader, 0)], 0.0)
     v_follow = idm.idm_follow_speed(
         speed, v_leader, gap, v_lane, p.accel, p.decel, p.tau, p.min_gap, p.delta,
@@ -219,7 +180,7 @@ def planned_speed(
     # link leaders at the next merge; the entry's leave speed is capped by them
     v_link, to_link = link_leader_speed(
         net, p, route, pos, speed, v_lane, active, seen > 0, v_wait, dt,
-        n_substeps, action_step,
+        n_substeps, action_step, tables=tables,
     )  # fmt: skip
     leave_cap = jnp.where(seen > 0, v_link, jnp.inf)
     v_follow = jnp.minimum(v_follow, v_link)
@@ -231,9 +192,7 @@ def planned_speed(
     # closed (judged on the previous step's registrations) withdraws its
     # requests on later links; so does one still beyond the visibility point
     leader_back = jnp.where(
-        leader >= 0,
-        jnp.take_along_axis(back, jnp.maximum(leader, 0)[:, None], 1)[:, 0],
-        jnp.inf,
+        leader >= 0, tables.back[route, jnp.maximum(leader, 0)], jnp.inf
     )
 
     def fol(v, v_l, gap):  # SUMO's futureVSafe: followSpeed from the leave speed
@@ -245,10 +204,10 @@ def planned_speed(
 
     # leaders on the approach cap the entry's arrival speed (adaptToLeader)
     appr_cap = jnp.where(leader_back < net.yield_offset[route], v_follow_own, jnp.inf)
-    e_start = net.yield_offset[route][:, None]
-    e_has, e_j, e_gap = _rearmost_on(
-        front, back, pos, active, e_start,
-        e_start + net.entry_internal_length[leg][:, None],
+    e_start = net.yield_offset[:, None]  # (R, 1)
+    e_has, e_j, e_gap = rearmost_on(
+        tables, route, pos, active, e_start,
+        e_start + net.entry_internal_length[net.route_origin][:, None],
     )  # fmt: skip
     entry_follow = (e_has[:, 0], speed[e_j[:, 0]], e_gap[:, 0], fol)
     plan = entry_approach(net, p, route, pos, speed, speed_factor, v_lane,
@@ -298,7 +257,10 @@ def planned_speed(
     lanes_k = net.route_lanes[route]
     lens_k = net.lane_length[jnp.maximum(lanes_k, 0)]
     ends_k = starts + lens_k  # (M, K), inf padded
-    l_has, l_j, l_gap = _rearmost_on(front, back, pos, active, starts, ends_k)
+    l_has, l_j, l_gap = rearmost_on(
+        tables, route, pos, active, net.route_lane_start,
+        net.route_lane_start + net.lane_length[jnp.maximum(net.route_lanes, 0)],
+    )  # fmt: skip
     f_k = idm.idm_follow_speed(
         speed[:, None], speed[l_j], l_gap, v_lane[:, None], pc.accel, p.decel,
         pc.tau, p.min_gap, p.delta, dt, n_substeps,
@@ -317,7 +279,7 @@ def planned_speed(
     def link_leaders_at(kk: jax.Array) -> jax.Array:  # the merge at route lane kk
         v, _ = link_leader_speed(
             net, p, route, pos, speed, v_lane, active, (seen > 0) & (kk == 1),
-            v_wait, dt, n_substeps, action_step, km_fixed=kk,
+            v_wait, dt, n_substeps, action_step, km_fixed=kk, tables=tables,
         )  # fmt: skip
         return v
 
@@ -335,9 +297,9 @@ def planned_speed(
     via_k = jnp.abs(starts[:, :, None] - c3) < 1e-3
     via_cap = jnp.min(jnp.where(via_k, vl_k[:, :, None], jnp.inf), 1)
     reg_kw = dict(v_pre=v_pre, ring_cap=ring_cap)
-    t_has, t_j, t_gap = _rearmost_on(
-        front, back, pos, active, c_off,
-        c_off + net.through_length[None, :],
+    t_has, t_j, t_gap = rearmost_on(
+        tables, route, pos, active, net.conflict_offset,
+        net.conflict_offset + net.through_length[None, :],
     )  # fmt: skip
     reg_kw["leave_follow"] = (t_has, speed[t_j], t_gap, fol)
     # link leaders at the exit of the via lane lower its leave speed

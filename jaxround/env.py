@@ -26,6 +26,7 @@ from jaxround.assertiveness import retuned_params
 from jaxround.config import ConfigError, ScenarioConfig, load_config
 from jaxround.geometry import NetArrays
 from jaxround.network import CompiledNetwork, compile_network
+from jaxround.reductions import first_min
 from jaxround.relax import soft_step
 from jaxround.reward import av_reward, system_reward
 from jaxround.sampling import inverse_cdf, smallest_k, sorted_uniform
@@ -374,8 +375,8 @@ class RoundaboutEnv:
         proj = geometry.project(net, route, lane, pos_on_lane)  # (G, M) backs
         ahead = jnp.where(state.active[None, :], proj - front[:, None], jnp.nan)
         ahead = jnp.where(jnp.isnan(ahead) | (ahead < -p.length), jnp.inf, ahead)
-        j = jnp.argmin(ahead, axis=1)
-        gap = jnp.min(ahead, axis=1) - p.min_gap  # SUMO's gap2pred
+        nearest, j = first_min(ahead, axis=1)
+        gap = nearest - p.min_gap  # SUMO's gap2pred
         v_lane = jnp.minimum(
             net.lane_speed[net.route_lanes[route, 0]] * s.speed_factor[c], p.max_speed
         )

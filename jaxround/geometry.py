@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxround.network import CompiledNetwork
+from jaxround.reductions import first_min
 
 #: Far away (m).
 FAR = 1e6
@@ -139,7 +140,7 @@ def project(
     position. A vehicle on the sibling of a lane of i's route (exit vs
     through) that has not yet diverged from it (lanes within 2.5 m, SUMO's
     divergence point) is placed on that lane. Others are nan: vehicles
-    merging in from another lane are link leaders (`link_leaders`).
+    merging in from another lane are link leaders (`neighbours.link_leader`).
 
     Returns:
         float (M_i, M_j).
@@ -168,75 +169,6 @@ def back_projection(
     return project(net, route, lane, pos_on_lane)
 
 
-def link_leaders(
-    net: NetArrays,
-    route: jax.Array,
-    pos: jax.Array,
-    active: jax.Array,
-    length: jax.Array,
-    min_gap: jax.Array,
-    km_fixed: int | jax.Array | None = None,
-) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """Vehicles on the lane that merges with each vehicle's next merging lane.
-
-    SUMO's link leaders (MSLink::getLeaderInfo): every vehicle with any part
-    on the merge partner of the next internal lane of i's route that merges
-    into a shared lane, with the gap measured to the crossing point where the
-    two lanes come within 2.5 m. The gap may be negative (the leader is
-    already level with or beside the crossing).
-
-    Returns:
-        (is_link, gap, front_on_partner, to_link): bool (M_i, M_j), float
-        (M_i, M_j) SUMO's gap after minGap, bool (M_i, M_j) the leader's front
-        is still on the partner lane, float (M_i,) distance to the start of
-        i's merging lane (negative once on it).
-    """
-    k, _, _ = locate(net, route, pos)
-    km = jnp.take_along_axis(net.merge_index[route], k[:, None], axis=1)[:, 0]  # (M,)
-    if km_fixed is not None:  # the merge at route lane km_fixed, if it merges
-        kf = jnp.full_like(km, km_fixed)
-        lane_f = jnp.take_along_axis(net.route_lanes[route], kf[:, None], axis=1)[:, 0]
-        ok_f = (lane_f >= 0) & (net.lane_partner[jnp.maximum(lane_f, 0)] >= 0)
-        km = jnp.where(ok_f & (kf >= k), kf, -1)
-    has_merge = km >= 0
-    km = jnp.maximum(km, 0)
-    mine = jnp.take_along_axis(net.route_lanes[route], km[:, None], axis=1)[:, 0]
-    start = jnp.take_along_axis(net.route_lane_start[route], km[:, None], axis=1)[:, 0]
-    partner = jnp.maximum(net.lane_partner[mine], 0)  # (M,)
-    to_crossing = start + net.lane_length[mine] - net.lane_converge[mine] - pos  # (M,)
-    # where the partner lane starts along each j's route (nan if j avoids it)
-    q_off = net.lane_offset[route][:, partner].T  # (M_i, M_j)
-    q_len = net.lane_length[partner][:, None]
-    back_on_q = pos[None, :] - length - q_off  # j's back along the partner lane
-    front_on_q = pos[None, :] - q_off
-    touches = (front_on_q > 0) & (back_on_q < q_len)
-    back_dist = q_len - net.lane_converge[partner][:, None] - back_on_q
-    extra = jnp.maximum(0.0, net.lane_converge[partner] - net.lane_converge[mine])[
-        :, None
-    ]
-    back_dist = jnp.where(back_dist < 0, back_dist + extra, back_dist)
-    gap = to_crossing[:, None] - min_gap - back_dist
-    # once both are on their merging lanes, only the one nearer the crossing
-    # leads (the ring's through lane wins a tie): two never wait for each other
-    on_junction = (start - pos <= 0)[:, None]
-    foe_to_crossing = q_len - net.lane_converge[partner][:, None] - front_on_q
-    foe_is_ring = jnp.any(partner[:, None] == net.through_lane[None, :], axis=1)
-    nearer = (foe_to_crossing < to_crossing[:, None]) | (
-        (foe_to_crossing == to_crossing[:, None]) & foe_is_ring[:, None]
-    )
-    m = pos.shape[0]
-    is_link = (
-        has_merge[:, None]
-        & active[:, None]
-        & active[None, :]
-        & ~jnp.isnan(q_off)
-        & touches
-        & (~on_junction | nearer)
-        & (jnp.arange(m)[None, :] != jnp.arange(m)[:, None])
-    )
-    return is_link, gap, front_on_q <= q_len, start - pos
-
-
 def leaders(
     proj: jax.Array, pos: jax.Array, active: jax.Array, length: jax.Array
 ) -> tuple[jax.Array, jax.Array]:
@@ -262,10 +194,9 @@ def leaders(
         & ~jnp.isnan(ahead)
         & ((ahead > 0) | ((ahead == 0) & slot_order))
     )
-    dist = jnp.where(ok, ahead, jnp.inf)
-    leader = jnp.argmin(dist, axis=1)
-    has = jnp.isfinite(jnp.min(dist, axis=1))
-    gap = jnp.where(has, jnp.min(dist, axis=1) - length, FAR)
+    nearest, leader = first_min(jnp.where(ok, ahead, jnp.inf), axis=1)
+    has = jnp.isfinite(nearest)
+    gap = jnp.where(has, nearest - length, FAR)
     return jnp.where(has, leader, -1), gap
 
 

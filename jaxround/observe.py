@@ -26,6 +26,8 @@ import jax
 import jax.numpy as jnp
 
 from jaxround.geometry import NetArrays, leaders, locate, project
+from jaxround.neighbours import soonest_ring_arrival
+from jaxround.reductions import first_min
 from jaxround.state import EnvParams, EnvState
 
 #: Position of a missing neighbour (positions are otherwise in [0, 1]).
@@ -52,7 +54,9 @@ def paper_observation(
     x_max = jnp.max(net.route_length)
     a_max = params.av_accel
     _, lane, pos_on_lane = locate(net, state.route, state.pos)
-    front = project(net, state.route, lane, pos_on_lane)  # (M, M)
+    routes = jnp.arange(net.route_length.shape[0])
+    # every front along every route (R, M), read along each vehicle's route
+    front = project(net, routes, lane, pos_on_lane)[state.route]  # (M, M)
     leader, gap = leaders(front, state.pos, state.active, params.length)
     # the follower: the nearest front behind this vehicle's back on its route
     behind = state.pos[:, None] - params.length - front  # (M, M)
@@ -64,16 +68,13 @@ def paper_observation(
         & ~jnp.isnan(behind)
         & (behind >= 0)
     )
-    dist = jnp.where(ok, behind, jnp.inf)
-    follower = jnp.argmin(dist, axis=1)
-    has_follower = jnp.isfinite(jnp.min(dist, axis=1))
+    nearest_behind, follower = first_min(jnp.where(ok, behind, jnp.inf), axis=1)
+    has_follower = jnp.isfinite(nearest_behind)
     has_leader = leader >= 0
     lead = jnp.maximum(leader, 0)
     a = state.accel
     x_front = jnp.where(has_leader, state.pos + gap + params.length, 0.0)
-    x_back = jnp.where(
-        has_follower, state.pos - params.length - jnp.min(dist, axis=1), 0.0
-    )
+    x_back = jnp.where(has_follower, state.pos - params.length - nearest_behind, 0.0)
     none = jnp.zeros(m)
     obs = jnp.stack(
         [
@@ -113,19 +114,9 @@ def rich_observation(
     # how soon the ring traffic upstream reaches this vehicle's entry: each
     # vehicle's distance to the ring's point level with the entry over its
     # speed (at least 1 m/s); from positions only, so SUMO gives the same
-    c_off = net.conflict_offset[state.route][:, origin].T  # (M_i, M_j)
-    dist = c_off - state.pos[None, :]
-    m = state.pos.shape[0]
-    coming = (
-        state.active[None, :]
-        & ~jnp.isnan(dist)
-        & (dist > 0)
-        & (jnp.arange(m)[None, :] != jnp.arange(m)[:, None])
+    soonest = soonest_ring_arrival(
+        net, state.route, state.pos, state.speed, state.active, origin
     )
-    # dist is nan off the route: divide only where coming (finite gradients)
-    dist = jnp.where(coming, dist, 0.0)
-    eta = jnp.where(coming, dist / jnp.maximum(state.speed[None, :], 1.0), jnp.inf)
-    soonest = jnp.min(eta, axis=1)
     legs_to_exit = (route_destination[state.route] - origin) % g
     extra = jnp.stack(
         [

@@ -13,7 +13,12 @@ import numpy as np
 import pytest
 
 from jaxround import bare_ring
-from jaxround.bench import batch_schedules, format_benchmark, run_benchmark
+from jaxround.bench import (
+    batch_schedules,
+    format_benchmark,
+    run_benchmark,
+    usable_cpus,
+)
 from jaxround.env import make
 from jaxround.schedule import make_schedule
 from tests.conftest import quick_compilation, small_config
@@ -52,8 +57,11 @@ def _positive(x: Any) -> bool:
 def test_result_has_the_documented_shape(result: dict[str, Any]) -> None:
     for key in (
         "sumo_vehicle_steps_per_s",
+        "sumo_parallel",
         "jax",
         "best_ratio_vs_sumo",
+        "best_ratio_vs_sumo_per_cpu_s",
+        "best_ratio_vs_sumo_parallel",
         "slots",
         "machine",
         "sim_seconds",
@@ -96,6 +104,34 @@ def test_throughputs_are_consistent(result: dict[str, Any]) -> None:
 
 
 @pytest.mark.sumo
+def test_ratios_per_cpu_second_and_against_sumo_on_every_core(
+    result: dict[str, Any],
+) -> None:
+    sumo = result["sumo"]
+    for row in result["jax"]:
+        assert row["ratio_vs_sumo_per_cpu_s"] == pytest.approx(
+            row["vehicle_steps_per_cpu_s"] / sumo["vehicle_steps_per_cpu_s"]
+        )
+    assert result["best_ratio_vs_sumo_per_cpu_s"] == pytest.approx(
+        max(row["ratio_vs_sumo_per_cpu_s"] for row in result["jax"])
+    )
+    parallel = result["sumo_parallel"]
+    assert parallel["processes"] == usable_cpus()
+    assert len(parallel["per_process"]) == parallel["processes"]
+    for row in parallel["per_process"]:
+        assert _positive(row["vehicle_steps_per_s"])
+        assert row["vehicle_steps"] > 0
+    assert parallel["vehicle_steps_per_s"] == pytest.approx(
+        sum(row["vehicle_steps_per_s"] for row in parallel["per_process"])
+    )
+    assert _positive(parallel["vehicle_steps_per_cpu_s"])
+    best = max(row["vehicle_steps_per_s"] for row in result["jax"])
+    assert result["best_ratio_vs_sumo_parallel"] == pytest.approx(
+        best / parallel["vehicle_steps_per_s"]
+    )
+
+
+@pytest.mark.sumo
 def test_flop_counts_and_the_bare_ring_yardstick(result: dict[str, Any]) -> None:
     for row in result["jax"]:
         assert _positive(row["flops_per_roundabout_step"])
@@ -121,6 +157,10 @@ def test_format_is_a_markdown_table(result: dict[str, Any]) -> None:
     for m in SLOT_SIZES:
         assert f"| {m} |" in text
     assert f"{result['best_ratio_vs_sumo']:.2f}x" in text
+    assert f"per CPU-second {result['best_ratio_vs_sumo_per_cpu_s']:.2f}x" in text
+    n = result["sumo_parallel"]["processes"]
+    assert f"| SUMO (libsumo), {n} processes | {n} |" in text
+    assert f"in {n} processes {result['best_ratio_vs_sumo_parallel']:.2f}x" in text
     assert "| bare IDM ring |" in text
 
 
@@ -132,6 +172,7 @@ def test_format_is_a_markdown_table(result: dict[str, Any]) -> None:
         {"sim_seconds": 0.0},
         {"max_vehicles": 0},
         {"slot_sizes": (16, 2.5)},
+        {"sumo_processes": 0},
     ],
 )
 def test_bad_arguments_fail_before_running(kwargs: dict[str, Any]) -> None:

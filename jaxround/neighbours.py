@@ -1,0 +1,369 @@
+"""Who is near whom: tables of the vehicle slots, built once per step.
+
+The planning step asks questions about lanes: which vehicle is the rearmost
+with any part on a lane of a route (SUMO's ``MSLane::getLastVehicleInformation``
+as ``MSVehicle::planMoveInternal`` walks the lanes ahead), which vehicles on the
+partner lane of a merge lead a vehicle there (``MSLink::getLeaderInfo``).
+Asked of every pair of slots for every lane these cost (M, M, K); here they
+are answered from tables:
+
+- every vehicle's front and back projected onto every route, (R, M)
+  (`geometry.project` onto all R routes at once: a vehicle's position along a
+  route does not depend on who asks);
+- for every lane k of every route r, the rearmost vehicle with any part on
+  it, (R, K), from one masked minimum over the slots;
+- for every merging lane, the two nearest vehicles on its partner lane, (Lm,).
+
+What depends on the asking vehicle's own position (the vehicles ahead of it on
+its own lane; the link leaders nearer the crossing once it is on its merging
+lane) is one masked minimum over the slots, (M, M), per question, without a
+lane axis.
+
+Each function returns what the all-pairs search it replaces returned (the
+tests keep those in ``tests/allpairs.py`` and compare), with one reservation:
+where two candidates at *different* positions give the same rounded float
+distance, the all-pairs search took the lower slot and these take the nearer
+one (the distance itself is the same).
+
+Shapes: M vehicle slots, R routes, K lanes per route, S segments, Lm merging
+lanes, G legs.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxround.geometry import NetArrays, locate, project
+from jaxround.reductions import first_min, two_smallest
+
+
+class LinkTable(NamedTuple):
+    """Vehicles with any part on the partner lane of each merging lane. (Lm, M)
+    per vehicle j unless said; the two best per lane, (Lm, 2).
+
+    Attributes:
+        valid: bool, j is active, its route uses the partner lane and it
+            touches it.
+        back_dist: float, SUMO's distance from j's back to the crossing
+            point (larger: nearer leader).
+        to_crossing: float, from j's front to the crossing point.
+        front_on: bool, j's front is still on the partner lane.
+        best_slot: int (Lm, 2) the two valid slots of largest back_dist
+            (lowest slot first among equals); best_ok: bool (Lm, 2).
+    """
+
+    valid: jax.Array
+    back_dist: jax.Array
+    to_crossing: jax.Array
+    front_on: jax.Array
+    best_slot: jax.Array
+    best_ok: jax.Array
+
+
+class CurrentLink(NamedTuple):
+    """For each vehicle i on a merging lane, its nearest link leader among
+    those nearer the crossing than it (SUMO: two never wait for each other).
+    (M,): slot (0 for none), found."""
+
+    slot: jax.Array
+    found: jax.Array
+
+
+class NeighbourTables(NamedTuple):
+    """What every route sees of every vehicle, and the per-vehicle look ahead.
+
+    Attributes:
+        front: float (R, M) where vehicle j's front lies along route r, nan
+            where j is off r (`geometry.project`).
+        back: float (R, M) where j's back lies along r; where the back is off
+            r but the front is on it (j merging in), ``front - length``.
+        ahead_back: float (M,) the smallest `back` along vehicle i's route of
+            the active vehicles j != i whose front is ahead of i's front
+            (inf for none).
+        ahead_slot: int (M,) that vehicle's slot (0 for none).
+        link: the merging lanes' tables (`LinkTable`).
+        link_cur: the link leader nearer the crossing for a vehicle on a
+            merging lane (`CurrentLink`).
+    """
+
+    front: jax.Array
+    back: jax.Array
+    ahead_back: jax.Array
+    ahead_slot: jax.Array
+    link: LinkTable
+    link_cur: CurrentLink
+
+
+def merging_lanes(net: NetArrays) -> tuple[np.ndarray, np.ndarray]:
+    """The lanes that merge with a partner, (Lm,), and each lane's row among
+    them, (L,) (-1 for lanes that do not merge). Static numpy arrays."""
+    partner = np.asarray(net.lane_partner)
+    lanes = np.nonzero(partner >= 0)[0].astype(np.int32)
+    row = -np.ones(partner.shape[0], np.int32)
+    row[lanes] = np.arange(lanes.shape[0], dtype=np.int32)
+    return lanes, row
+
+
+def route_projections(
+    net: NetArrays, route: jax.Array, pos: jax.Array, length: jax.Array
+) -> tuple[jax.Array, jax.Array]:
+    """Every vehicle's front and back along every route, (R, M) each.
+
+    ``front[r, j]`` is `geometry.project` of j onto route r; ``back[r, j]``
+    that of j's back (as `geometry.back_projection`), ``front - length``
+    where the back is off r but the front is on it.
+    """
+    routes = jnp.arange(net.route_length.shape[0])
+    _, lane, pos_on_lane = locate(net, route, pos)
+    front = project(net, routes, lane, pos_on_lane)  # (R, M)
+    _, back_lane, back_on_lane = locate(net, route, jnp.maximum(pos - length, 0.0))
+    back = project(net, routes, back_lane, back_on_lane)  # (R, M)
+    return front, jnp.where(jnp.isnan(back), front - length, back)
+
+
+def build_tables(
+    net: NetArrays,
+    route: jax.Array,
+    pos: jax.Array,
+    active: jax.Array,
+    length: jax.Array,
+) -> NeighbourTables:
+    """The tables of one step's state.
+
+    Args:
+        route, pos: int (M,), float (M,) each slot's route and front position.
+        active: bool (M,).
+        length: vehicle length (scalar).
+    """
+    front, back = route_projections(net, route, pos, length)
+    m = pos.shape[0]
+    others = jnp.arange(m)[None, :] != jnp.arange(m)[:, None]
+    # the vehicles j ahead of each vehicle i along i's route: (M_i, M_j), no
+    # lane axis (nan is never ahead)
+    ahead = active[None, :] & others & (front[route] > pos[:, None])
+    ahead_back, ahead_slot = first_min(jnp.where(ahead, back[route], jnp.inf), 1)
+    link = _link_table(net, route, pos, active, length)
+    return NeighbourTables(
+        front=front,
+        back=back,
+        ahead_back=ahead_back,
+        ahead_slot=ahead_slot,
+        link=link,
+        link_cur=_current_link(net, link, route, pos, active),
+    )
+
+
+def _first_other(best: jax.Array, found: jax.Array, me: jax.Array):
+    """Of two candidates (..., 2), the first that is not slot `me` (...,)."""
+    skip = best[..., 0] == me
+    slot = jnp.where(skip, best[..., 1], best[..., 0])
+    ok = jnp.where(skip, found[..., 1], found[..., 0])
+    return slot, ok
+
+
+def rearmost_on(
+    tables: NeighbourTables,
+    route: jax.Array,
+    pos: jax.Array,
+    active: jax.Array,
+    seg_start: jax.Array,
+    seg_end: jax.Array,
+) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """The rearmost vehicle with any part on [seg_start, seg_end) of each
+    vehicle's route, ahead of it (SUMO's MSLane::getLastVehicleInformation).
+
+    A vehicle j counts for vehicle i if it is active, not i, its front lies
+    along i's route beyond both i's front and the segment's start, and its
+    back before the segment's end. A segment starting ahead of i is looked
+    up in a per-route table; one starting at or behind i takes the vehicles
+    ahead of i (`NeighbourTables.ahead_back`).
+
+    Args:
+        seg_start, seg_end: float (R, S) the segments of each route (nan or
+            +inf: none).
+
+    Returns:
+        (has, j, gap): bool (M, S), int (M, S) slot (0 for none), float
+        (M, S) from i's front to j's back (inf for none).
+    """
+    front, back = tables.front, tables.back  # (R, M)
+    counts = active[None, :] & ~jnp.isnan(front)
+    touch = (
+        counts[:, None, :]
+        & (front[:, None, :] > seg_start[:, :, None])
+        & (back[:, None, :] < seg_end[:, :, None])
+    )  # (R, S, M)
+    # a vehicle is never in its own route's table beyond its own lane (its
+    # projection is its position, up to a rounding that cannot pass the
+    # next lane's start): one vehicle per segment is enough
+    t_back, t_slot = first_min(jnp.where(touch, back[:, None, :], jnp.inf), 2)
+    start = seg_start[route]  # (M, S)
+    t_slot, t_ok = t_slot[route], jnp.isfinite(t_back[route])
+    # the vehicles ahead of i: the rearmost of them, if its back is on the segment
+    c_ok = jnp.isfinite(tables.ahead_back)[:, None] & (
+        tables.ahead_back[:, None] < seg_end[route]
+    )
+    from_table = start > pos[:, None]
+    slot = jnp.where(from_table, t_slot, tables.ahead_slot[:, None])
+    has = jnp.where(from_table, t_ok, c_ok) & active[:, None] & ~jnp.isnan(start)
+    slot = jnp.where(has, slot, 0)
+    b = tables.back[route[:, None], slot]  # (M, S)
+    return has, slot, jnp.where(has, b - pos[:, None], jnp.inf)
+
+
+def _link_table(
+    net: NetArrays,
+    route: jax.Array,
+    pos: jax.Array,
+    active: jax.Array,
+    length: jax.Array,
+) -> LinkTable:
+    """The vehicles touching each merging lane's partner, (Lm, M)."""
+    lanes, _ = merging_lanes(net)
+    partner = net.lane_partner[lanes]  # (Lm,)
+    q_off = net.lane_offset[route][:, partner].T  # (Lm, M): where it starts for j
+    q_len = net.lane_length[partner][:, None]
+    q_conv = net.lane_converge[partner][:, None]
+    back_on_q = pos[None, :] - length - q_off
+    front_on_q = pos[None, :] - q_off
+    touches = (front_on_q > 0) & (back_on_q < q_len)
+    back_dist = q_len - q_conv - back_on_q
+    extra = jnp.maximum(0.0, q_conv - net.lane_converge[lanes][:, None])
+    back_dist = jnp.where(back_dist < 0, back_dist + extra, back_dist)
+    valid = active[None, :] & ~jnp.isnan(q_off) & touches
+    best, value = two_smallest(jnp.where(valid, -back_dist, jnp.inf), axis=1)
+    found = jnp.isfinite(value)
+    return LinkTable(
+        valid=valid,
+        back_dist=back_dist,
+        to_crossing=q_len - q_conv - front_on_q,
+        front_on=front_on_q <= q_len,
+        best_slot=best,
+        best_ok=found,
+    )
+
+
+def _current_link(
+    net: NetArrays,
+    link: LinkTable,
+    route: jax.Array,
+    pos: jax.Array,
+    active: jax.Array,
+) -> CurrentLink:
+    """For a vehicle on a merging lane: the nearest link leader nearer the
+    crossing than itself (the ring's through lane wins a tie), (M,)."""
+    lanes, row_of = merging_lanes(net)
+    k, lane, _ = locate(net, route, pos)
+    row = jnp.asarray(row_of)[lane]  # (M,)
+    r = jnp.maximum(row, 0)
+    start = jnp.take_along_axis(net.route_lane_start[route], k[:, None], axis=1)[:, 0]
+    to_crossing = start + net.lane_length[lane] - net.lane_converge[lane] - pos
+    partner = net.lane_partner[jnp.asarray(lanes)][r]
+    foe_is_ring = jnp.any(partner[:, None] == net.through_lane[None, :], axis=1)
+    foe_tc = link.to_crossing[r]  # (M_i, M_j)
+    nearer = (foe_tc < to_crossing[:, None]) | (
+        (foe_tc == to_crossing[:, None]) & foe_is_ring[:, None]
+    )
+    m = pos.shape[0]
+    others = jnp.arange(m)[None, :] != jnp.arange(m)[:, None]
+    ok = link.valid[r] & nearer & others
+    d, slot = first_min(jnp.where(ok, -link.back_dist[r], jnp.inf), 1)
+    return CurrentLink(slot=slot, found=(row >= 0) & active & jnp.isfinite(d))
+
+
+class LinkLeader(NamedTuple):
+    """The nearest link leader of each vehicle at one merge. (M,).
+
+    Attributes:
+        has: bool, there is one.
+        slot: int, its slot (0 for none).
+        gap: float, SUMO's gap after minGap to the crossing point (may be
+            negative; meaningless without a leader).
+        front_on: bool, the leader's front is still on the partner lane.
+        to_link: float, distance to the start of the vehicle's merging lane
+            (negative once on it).
+    """
+
+    has: jax.Array
+    slot: jax.Array
+    gap: jax.Array
+    front_on: jax.Array
+    to_link: jax.Array
+
+
+def link_leader(
+    net: NetArrays,
+    tables: NeighbourTables,
+    route: jax.Array,
+    pos: jax.Array,
+    active: jax.Array,
+    min_gap: jax.Array,
+    km_fixed: int | jax.Array | None = None,
+) -> LinkLeader:
+    """The nearest vehicle on the lane that merges with each vehicle's next
+    merging lane (SUMO's MSLink::getLeaderInfo, the nearest of them).
+
+    Every vehicle with any part on the merge partner of the next internal
+    lane of i's route that merges into a shared lane leads it, with the gap
+    measured to the crossing point where the two lanes come within 2.5 m.
+    Once i is on its merging lane, only those nearer the crossing lead it
+    (the ring's through lane wins a tie): two never wait for each other.
+
+    Args:
+        km_fixed: the route lane index of the merge; default the next merge.
+    """
+    k, _, _ = locate(net, route, pos)
+    km = jnp.take_along_axis(net.merge_index[route], k[:, None], axis=1)[:, 0]  # (M,)
+    if km_fixed is not None:  # the merge at route lane km_fixed, if it merges
+        kf = jnp.full_like(km, km_fixed)
+        lane_f = jnp.take_along_axis(net.route_lanes[route], kf[:, None], axis=1)[:, 0]
+        ok_f = (lane_f >= 0) & (net.lane_partner[jnp.maximum(lane_f, 0)] >= 0)
+        km = jnp.where(ok_f & (kf >= k), kf, -1)
+    has_merge = km >= 0
+    km = jnp.maximum(km, 0)
+    mine = jnp.take_along_axis(net.route_lanes[route], km[:, None], axis=1)[:, 0]
+    start = jnp.take_along_axis(net.route_lane_start[route], km[:, None], axis=1)[:, 0]
+    to_crossing = start + net.lane_length[mine] - net.lane_converge[mine] - pos  # (M,)
+    _, row_of = merging_lanes(net)
+    row = jnp.maximum(jnp.asarray(row_of)[mine], 0)
+    link = tables.link
+    me = jnp.arange(pos.shape[0])
+    t_slot, t_ok = _first_other(link.best_slot[row], link.best_ok[row], me)
+    # on its merging lane (then it is the lane the vehicle is on, km == k):
+    # only the leaders nearer the crossing
+    on_junction = start - pos <= 0
+    slot = jnp.where(on_junction, tables.link_cur.slot, t_slot)
+    found = jnp.where(on_junction, tables.link_cur.found, t_ok)
+    has = has_merge & active & found
+    slot = jnp.where(has, slot, 0)
+    back_dist = link.back_dist[row, slot]
+    return LinkLeader(
+        has=has,
+        slot=slot,
+        gap=to_crossing - min_gap - back_dist,
+        front_on=link.front_on[row, slot],
+        to_link=start - pos,
+    )
+
+
+def soonest_ring_arrival(
+    net: NetArrays, route: jax.Array, pos: jax.Array, speed: jax.Array,
+    active: jax.Array, leg: jax.Array,
+) -> jax.Array:  # fmt: skip
+    """How soon the first other vehicle reaches the ring point level with the
+    entry of `leg`: its distance there over its speed (at least 1 m/s), float
+    (M,) for vehicle i and its leg[i] (inf for none). One (G, M) table."""
+    dist = net.conflict_offset[route].T - pos[None, :]  # (G, M)
+    coming = active[None, :] & ~jnp.isnan(dist) & (dist > 0)
+    # dist is nan off the route: divide only where coming (finite gradients)
+    dist = jnp.where(coming, dist, 0.0)
+    eta = jnp.where(coming, dist / jnp.maximum(speed[None, :], 1.0), jnp.inf)
+    best, value = two_smallest(eta, axis=1)  # (G, 2)
+    slot, ok = _first_other(
+        best[leg], jnp.isfinite(value[leg]), jnp.arange(pos.shape[0])
+    )
+    return jnp.where(ok, eta[leg, slot], jnp.inf)
