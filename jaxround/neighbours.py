@@ -190,17 +190,13 @@ def rearmost_on(
         (has, j, gap): bool (M, S), int (M, S) slot (0 for none), float
         (M, S) from i's front to j's back (inf for none).
     """
-    front, back = tables.front, tables.back  # (R, M)
-    counts = active[None, :] & ~jnp.isnan(front)
-    touch = (
-        counts[:, None, :]
-        & (front[:, None, :] > seg_start[:, :, None])
-        & (back[:, None, :] < seg_end[:, :, None])
-    )  # (R, S, M)
+    front, back = tables.front[:, None, :], tables.back[:, None, :]  # (R, 1, M)
+    counts = active & ~jnp.isnan(front)
+    touch = counts & (front > seg_start[..., None]) & (back < seg_end[..., None])
     # a vehicle is never in its own route's table beyond its own lane (its
     # projection is its position, up to a rounding that cannot pass the
     # next lane's start): one vehicle per segment is enough
-    t_back, t_slot = first_min(jnp.where(touch, back[:, None, :], jnp.inf), 2)
+    t_back, t_slot = first_min(jnp.where(touch, back, jnp.inf), 2)  # (R, S)
     start = seg_start[route]  # (M, S)
     t_slot, t_ok = t_slot[route], jnp.isfinite(t_back[route])
     # the vehicles ahead of i: the rearmost of them, if its back is on the segment
@@ -213,6 +209,57 @@ def rearmost_on(
     slot = jnp.where(has, slot, 0)
     b = tables.back[route[:, None], slot]  # (M, S)
     return has, slot, jnp.where(has, b - pos[:, None], jnp.inf)
+
+
+def rearmost_on_lanes(
+    net: NetArrays,
+    tables: NeighbourTables,
+    route: jax.Array,
+    pos: jax.Array,
+    active: jax.Array,
+) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """`rearmost_on` every lane of each vehicle's route, (M, K) each: the
+    look-ahead of SUMO's planMoveInternal, lane by lane."""
+    start = net.route_lane_start  # (R, K), +inf padded
+    end = start + net.lane_length[jnp.maximum(net.route_lanes, 0)]
+    return rearmost_on(tables, route, pos, active, start, end)
+
+
+def on_entry_lane(
+    net: NetArrays, lanes: tuple[jax.Array, jax.Array, jax.Array]
+) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """The rearmost vehicle on each vehicle's entry (its route's internal lane
+    onto the ring, route lane 1), (M, 1) each, from `rearmost_on_lanes`."""
+    start = np.asarray(net.route_lane_start)
+    length = np.asarray(net.lane_length)[np.asarray(net.route_lanes)[:, 1]]
+    entry = np.asarray(net.entry_internal_length)[np.asarray(net.route_origin)]
+    if not (
+        np.array_equal(start[:, 1], np.asarray(net.yield_offset))
+        and np.array_equal(length, entry)
+    ):
+        raise ValueError("network: a route's lane 1 is not its entry's internal lane")
+    return tuple(x[:, 1:2] for x in lanes)  # type: ignore[return-value]
+
+
+def on_through_lanes(
+    net: NetArrays, lanes: tuple[jax.Array, jax.Array, jax.Array], route: jax.Array
+) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """The rearmost vehicle on the ring's through lane at every leg, (M, G)
+    each (none where the route does not pass it), from `rearmost_on_lanes`."""
+    index = np.asarray(net.conflict_index)  # (R, G)
+    rows = np.arange(index.shape[0])[:, None]
+    offset = np.asarray(net.conflict_offset)
+    passes = ~np.isnan(offset)
+    lane = np.asarray(net.route_lanes)[rows, index]
+    same = (np.asarray(net.route_lane_start)[rows, index] == offset) & (
+        np.asarray(net.lane_length)[lane] == np.asarray(net.through_length)[None, :]
+    )
+    if not np.all(same[passes]):
+        raise ValueError("network: a route's conflict offset is not a lane start")
+    k = net.conflict_index[route]  # (M, G)
+    has, slot, gap = (jnp.take_along_axis(x, k, axis=1) for x in lanes)
+    has = has & jnp.asarray(passes)[route]
+    return has, jnp.where(has, slot, 0), jnp.where(has, gap, jnp.inf)
 
 
 def _link_table(
@@ -235,7 +282,7 @@ def _link_table(
     extra = jnp.maximum(0.0, q_conv - net.lane_converge[lanes][:, None])
     back_dist = jnp.where(back_dist < 0, back_dist + extra, back_dist)
     valid = active[None, :] & ~jnp.isnan(q_off) & touches
-    best, value = two_smallest(jnp.where(valid, -back_dist, jnp.inf), axis=1)
+    best, value = two_smallest(jnp.where(valid, -back_dist, jnp.inf).T, axis=0)
     found = jnp.isfinite(value)
     return LinkTable(
         valid=valid,
@@ -362,7 +409,7 @@ def soonest_ring_arrival(
     # dist is nan off the route: divide only where coming (finite gradients)
     dist = jnp.where(coming, dist, 0.0)
     eta = jnp.where(coming, dist / jnp.maximum(speed[None, :], 1.0), jnp.inf)
-    best, value = two_smallest(eta, axis=1)  # (G, 2)
+    best, value = two_smallest(eta.T, axis=0)  # (G, 2)
     slot, ok = _first_other(
         best[leg], jnp.isfinite(value[leg]), jnp.arange(pos.shape[0])
     )

@@ -152,6 +152,12 @@ def test_rearmost_on_matches_all_pairs(case) -> None:
             new = neighbours.rearmost_on(tables, route, pos, active, a, b)
             old = allpairs.rearmost_on(front, back, pos, active, a[route], b[route])
             out[name] = (new, old)
+        # the entry and the through lanes read from the table of the lanes
+        lanes = neighbours.rearmost_on_lanes(net, tables, route, pos, active)
+        out["lanes, read"] = (lanes, out["lanes"][1])
+        out["entry, read"] = (neighbours.on_entry_lane(net, lanes), out["entry"][1])
+        through = neighbours.on_through_lanes(net, lanes, route)
+        out["through, read"] = (through, out["through"][1])
         return out
 
     for name, (new, old) in jax.jit(both)(states).items():
