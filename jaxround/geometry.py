@@ -187,15 +187,10 @@ def leaders(
     eye = jnp.eye(m, dtype=bool)
     # equal positions: the lower slot counts as ahead, so two never both lead
     slot_order = jnp.arange(m)[None, :] < jnp.arange(m)[:, None]
-    ok = (
-        active[None, :]
-        & active[:, None]
-        & ~eye
-        & ~jnp.isnan(ahead)
-        & ((ahead > 0) | ((ahead == 0) & slot_order))
-    )
+    # (nan, off the route, is neither > 0 nor == 0)
+    ok = active[None, :] & ~eye & ((ahead > 0) | ((ahead == 0) & slot_order))
     nearest, leader = first_min(jnp.where(ok, ahead, jnp.inf), axis=1)
-    has = jnp.isfinite(nearest)
+    has = jnp.isfinite(nearest) & active
     gap = jnp.where(has, nearest - length, FAR)
     return jnp.where(has, leader, -1), gap
 
