@@ -24,10 +24,10 @@ from jaxround.junction import (
     entry_candidates,
     register,
 )
+from jaxround.link_leaders import link_leader
 from jaxround.neighbours import (
     NeighbourTables,
     build_tables,
-    link_leader,
     on_entry_lane,
     on_through_lanes,
     rearmost_on_lanes,

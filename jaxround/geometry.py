@@ -140,7 +140,7 @@ def project(
     position. A vehicle on the sibling of a lane of i's route (exit vs
     through) that has not yet diverged from it (lanes within 2.5 m, SUMO's
     divergence point) is placed on that lane. Others are nan: vehicles
-    merging in from another lane are link leaders (`neighbours.link_leader`).
+    merging in from another lane are link leaders (`link_leaders.link_leader`).
 
     Returns:
         float (M_i, M_j).

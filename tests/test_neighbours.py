@@ -18,6 +18,7 @@ import pytest
 from jaxround import dynamics, neighbours, observe
 from jaxround.env import make
 from jaxround.geometry import back_projection, leaders, locate, project
+from jaxround.link_leaders import link_leader
 from tests import allpairs
 
 M = 24
@@ -195,9 +196,7 @@ def test_link_leaders_match_all_pairs(case) -> None:
         tables = neighbours.build_tables(net, route, pos, active, p.length)
         out = []
         for km in merges:
-            lead = neighbours.link_leader(
-                net, tables, route, pos, active, p.min_gap, km_fixed=km
-            )
+            lead = link_leader(net, tables, route, pos, active, p.min_gap, km_fixed=km)
             is_link, gap, front_on, to_link = allpairs.link_leaders(
                 net, route, pos, active, p.length, p.min_gap, km_fixed=km
             )
