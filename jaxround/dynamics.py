@@ -25,7 +25,14 @@ from jaxround.junction import (
     entry_candidates,
     register,
 )
-from jaxround.neighbours import NeighbourTables, build_tables, link_leader, rearmost_on
+from jaxround.link_leaders import link_leader
+from jaxround.neighbours import (
+    NeighbourTables,
+    build_tables,
+    on_entry_lane,
+    on_through_lanes,
+    rearmost_on_lanes,
+)
 from jaxround.relax import blend, soft_or
 from jaxround.state import EnvParams, Registrations
 
@@ -204,11 +211,10 @@ def planned_speed(
 
     # leaders on the approach cap the entry's arrival speed (adaptToLeader)
     appr_cap = jnp.where(leader_back < net.yield_offset[route], v_follow_own, jnp.inf)
-    e_start = net.yield_offset[:, None]  # (R, 1)
-    e_has, e_j, e_gap = rearmost_on(
-        tables, route, pos, active, e_start,
-        e_start + net.entry_internal_length[net.route_origin][:, None],
-    )  # fmt: skip
+    # every lane of the look-ahead: its rearmost vehicle (SUMO's
+    # planMoveInternal loop); the entry's internal lane is one of them
+    look_ahead = rearmost_on_lanes(net, tables, route, pos, active)  # (M, K)
+    e_has, e_j, e_gap = on_entry_lane(net, look_ahead)
     entry_follow = (e_has[:, 0], speed[e_j[:, 0]], e_gap[:, 0], fol)
     plan = entry_approach(net, p, route, pos, speed, speed_factor, v_lane,
                           jnp.inf, t, dt, appr_cap, v_start=v_start)  # fmt: skip
@@ -257,10 +263,7 @@ def planned_speed(
     lanes_k = net.route_lanes[route]
     lens_k = net.lane_length[jnp.maximum(lanes_k, 0)]
     ends_k = starts + lens_k  # (M, K), inf padded
-    l_has, l_j, l_gap = rearmost_on(
-        tables, route, pos, active, net.route_lane_start,
-        net.route_lane_start + net.lane_length[jnp.maximum(net.route_lanes, 0)],
-    )  # fmt: skip
+    l_has, l_j, l_gap = look_ahead
     f_k = idm.idm_follow_speed(
         speed[:, None], speed[l_j], l_gap, v_lane[:, None], pc.accel, p.decel,
         pc.tau, p.min_gap, p.delta, dt, n_substeps,
@@ -297,10 +300,7 @@ def planned_speed(
     via_k = jnp.abs(starts[:, :, None] - c3) < 1e-3
     via_cap = jnp.min(jnp.where(via_k, vl_k[:, :, None], jnp.inf), 1)
     reg_kw = dict(v_pre=v_pre, ring_cap=ring_cap)
-    t_has, t_j, t_gap = rearmost_on(
-        tables, route, pos, active, net.conflict_offset,
-        net.conflict_offset + net.through_length[None, :],
-    )  # fmt: skip
+    t_has, t_j, t_gap = on_through_lanes(net, look_ahead, route)  # (M, G)
     reg_kw["leave_follow"] = (t_has, speed[t_j], t_gap, fol)
     # link leaders at the exit of the via lane lower its leave speed
     reg_kw["leave_cap"] = via_cap

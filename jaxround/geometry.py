@@ -140,7 +140,7 @@ def project(
     position. A vehicle on the sibling of a lane of i's route (exit vs
     through) that has not yet diverged from it (lanes within 2.5 m, SUMO's
     divergence point) is placed on that lane. Others are nan: vehicles
-    merging in from another lane are link leaders (`neighbours.link_leader`).
+    merging in from another lane are link leaders (`link_leaders.link_leader`).
 
     Returns:
         float (M_i, M_j).
@@ -187,15 +187,10 @@ def leaders(
     eye = jnp.eye(m, dtype=bool)
     # equal positions: the lower slot counts as ahead, so two never both lead
     slot_order = jnp.arange(m)[None, :] < jnp.arange(m)[:, None]
-    ok = (
-        active[None, :]
-        & active[:, None]
-        & ~eye
-        & ~jnp.isnan(ahead)
-        & ((ahead > 0) | ((ahead == 0) & slot_order))
-    )
+    # (nan, off the route, is neither > 0 nor == 0)
+    ok = active[None, :] & ~eye & ((ahead > 0) | ((ahead == 0) & slot_order))
     nearest, leader = first_min(jnp.where(ok, ahead, jnp.inf), axis=1)
-    has = jnp.isfinite(nearest)
+    has = jnp.isfinite(nearest) & active
     gap = jnp.where(has, nearest - length, FAR)
     return jnp.where(has, leader, -1), gap
 

@@ -61,15 +61,10 @@ def paper_observation(
     # the follower: the nearest front behind this vehicle's back on its route
     behind = state.pos[:, None] - params.length - front  # (M, M)
     m = state.pos.shape[0]
-    ok = (
-        state.active[None, :]
-        & state.active[:, None]
-        & (jnp.arange(m)[None, :] != jnp.arange(m)[:, None])
-        & ~jnp.isnan(behind)
-        & (behind >= 0)
-    )
+    others = jnp.arange(m)[None, :] != jnp.arange(m)[:, None]
+    ok = state.active[None, :] & others & (behind >= 0)  # nan (off the route): no
     nearest_behind, follower = first_min(jnp.where(ok, behind, jnp.inf), axis=1)
-    has_follower = jnp.isfinite(nearest_behind)
+    has_follower = jnp.isfinite(nearest_behind) & state.active
     has_leader = leader >= 0
     lead = jnp.maximum(leader, 0)
     a = state.accel

@@ -18,6 +18,7 @@ import pytest
 from jaxround import dynamics, neighbours, observe
 from jaxround.env import make
 from jaxround.geometry import back_projection, leaders, locate, project
+from jaxround.link_leaders import link_leader
 from tests import allpairs
 
 M = 24
@@ -152,6 +153,12 @@ def test_rearmost_on_matches_all_pairs(case) -> None:
             new = neighbours.rearmost_on(tables, route, pos, active, a, b)
             old = allpairs.rearmost_on(front, back, pos, active, a[route], b[route])
             out[name] = (new, old)
+        # the entry and the through lanes read from the table of the lanes
+        lanes = neighbours.rearmost_on_lanes(net, tables, route, pos, active)
+        out["lanes, read"] = (lanes, out["lanes"][1])
+        out["entry, read"] = (neighbours.on_entry_lane(net, lanes), out["entry"][1])
+        through = neighbours.on_through_lanes(net, lanes, route)
+        out["through, read"] = (through, out["through"][1])
         return out
 
     for name, (new, old) in jax.jit(both)(states).items():
@@ -189,9 +196,7 @@ def test_link_leaders_match_all_pairs(case) -> None:
         tables = neighbours.build_tables(net, route, pos, active, p.length)
         out = []
         for km in merges:
-            lead = neighbours.link_leader(
-                net, tables, route, pos, active, p.min_gap, km_fixed=km
-            )
+            lead = link_leader(net, tables, route, pos, active, p.min_gap, km_fixed=km)
             is_link, gap, front_on, to_link = allpairs.link_leaders(
                 net, route, pos, active, p.length, p.min_gap, km_fixed=km
             )
