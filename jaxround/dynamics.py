@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxround import command as traci
-from jaxround import idm
+from jaxround import finalize, idm
 from jaxround.geometry import NetArrays, leaders, locate
 from jaxround.insertion import STOP_OFFSET
 from jaxround.junction import (
@@ -335,12 +335,12 @@ def planned_speed(
     )
     v_safe = jnp.minimum(jnp.minimum(v_follow, v_limits), v_free)
     v_safe = blend(must_stop_w, v_before_line, v_safe)
-    v_next = idm.next_speed(
+    v_next = finalize.next_speed(
         speed, v_safe, v_lane, p.accel, p.decel, p.emergency_decel, dt, action_step
     )
     if command is not None:  # executeMove -> processTraCISpeedControl
         v_next = traci.influence_speed(
             command, v_next, v_safe=v_safe, v_max=v_max_next, v_min=v_min_next
         )
-        v_next = idm.snap_speed(v_next, dt)
+        v_next = finalize.snap_speed(v_next, dt)
     return jnp.where(active, v_next, 0.0), regs, blocked, leader, gap

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxround import idm
+from jaxround import finalize, idm
 
 ACCEL = 1.7634
 DECEL = 4.2939
@@ -61,7 +61,7 @@ def test_free_road_from_standstill(dt: float) -> None:
     v_free = idm.idm_free_speed(0.0, LANE_SPEED, ACCEL, DECEL, TAU, MIN_GAP, 4.0, dt, n)
     assert float(v_free) == pytest.approx(v, rel=1e-6)
     assert v < ACCEL * dt  # slightly below the acceleration bound
-    v_next = idm.next_speed(
+    v_next = finalize.next_speed(
         0.0, v_free, LANE_SPEED, ACCEL, DECEL, EMERGENCY_DECEL, dt, dt
     )
     assert float(v_next) == pytest.approx(v, rel=1e-6)
@@ -78,7 +78,9 @@ def test_standstill_behind_stopped_leader() -> None:
     # executeMove snaps to 0 (|v| < 0.1 * NUMERICAL_EPS * dt), as measured
     creep = idm.idm_follow_speed(0.0, 0.0, MIN_GAP + 5.5e-5, *args)
     assert 0.0 < float(creep) < 0.1 * idm.NUMERICAL_EPS * dt
-    v = idm.next_speed(0.0, creep, LANE_SPEED, ACCEL, DECEL, EMERGENCY_DECEL, dt, dt)
+    v = finalize.next_speed(
+        0.0, creep, LANE_SPEED, ACCEL, DECEL, EMERGENCY_DECEL, dt, dt
+    )
     assert float(v) == 0.0
     # a real gap: it starts
     assert float(idm.idm_follow_speed(0.0, 0.0, 10.0, *args)) > 0.5
@@ -88,26 +90,28 @@ def test_finalize_bounds() -> None:
     dt = 0.5
     bounds = (ACCEL, DECEL, EMERGENCY_DECEL, dt, dt)
     # leader stopped dead ahead: v_safe 0 is capped by the emergency decel
-    assert float(idm.finalize_speed(12.0, 0.0, LANE_SPEED, *bounds)) == pytest.approx(
-        12.0 - EMERGENCY_DECEL * dt
-    )
+    assert float(
+        finalize.finalize_speed(12.0, 0.0, LANE_SPEED, *bounds)
+    ) == pytest.approx(12.0 - EMERGENCY_DECEL * dt)
     # v_safe between the comfortable and the emergency bound: taken as it is
-    assert float(idm.finalize_speed(12.0, 8.5, LANE_SPEED, *bounds)) == 8.5
+    assert float(finalize.finalize_speed(12.0, 8.5, LANE_SPEED, *bounds)) == 8.5
     # v_safe above the comfortable bound: taken as it is
-    assert float(idm.finalize_speed(12.0, 11.0, LANE_SPEED, *bounds)) == 11.0
+    assert float(finalize.finalize_speed(12.0, 11.0, LANE_SPEED, *bounds)) == 11.0
     # accelerating: bounded by accel * dt
-    assert float(idm.finalize_speed(5.0, 20.0, LANE_SPEED, *bounds)) == pytest.approx(
-        5.0 + ACCEL * dt
-    )
+    assert float(
+        finalize.finalize_speed(5.0, 20.0, LANE_SPEED, *bounds)
+    ) == pytest.approx(5.0 + ACCEL * dt)
     # above the lane limit (limit dropped): at most the comfortable decel
-    assert float(idm.finalize_speed(15.0, 20.0, 10.0, *bounds)) == pytest.approx(
+    assert float(finalize.finalize_speed(15.0, 20.0, 10.0, *bounds)) == pytest.approx(
         15.0 - DECEL * dt
     )
     # action step 1 s at dt 0.5: only half way to the lane speed
-    v = idm.finalize_speed(10.0, 20.0, 10.5, ACCEL, DECEL, EMERGENCY_DECEL, dt, 1.0)
+    v = finalize.finalize_speed(
+        10.0, 20.0, 10.5, ACCEL, DECEL, EMERGENCY_DECEL, dt, 1.0
+    )
     assert float(v) == pytest.approx(10.25)
     # low decel: MSCFModel_IDM::minNextSpeed uses max(decel, min(emergency, 1.5))
-    v = idm.finalize_speed(10.0, 20.0, 5.0, ACCEL, 1.0, EMERGENCY_DECEL, dt, dt)
+    v = finalize.finalize_speed(10.0, 20.0, 5.0, ACCEL, 1.0, EMERGENCY_DECEL, dt, dt)
     assert float(v) == pytest.approx(10.0 - 1.5 * dt)
 
 
@@ -133,7 +137,7 @@ def test_jit_vmap_float32() -> None:
         vs = idm.idm_follow_speed(
             v, v_leader, gap, v0, ACCEL, DECEL, TAU, 2.5, 4.0, dt, n
         )
-        return idm.next_speed(v, vs, v0, ACCEL, DECEL, EMERGENCY_DECEL, dt, dt)
+        return finalize.next_speed(v, vs, v0, ACCEL, DECEL, EMERGENCY_DECEL, dt, dt)
 
     v = jnp.linspace(0.0, 14.0, 8)
     out = jax.jit(jax.vmap(step))(v, v[::-1], jnp.full(8, 20.0), jnp.full(8, 15.0))
@@ -146,11 +150,11 @@ def test_jit_vmap_float32() -> None:
 
 def test_hold_or_update() -> None:
     dt = 0.5
-    v, a = idm.hold_or_update(0, 2, 10.0, 11.0, -3.0, dt)
+    v, a = finalize.hold_or_update(0, 2, 10.0, 11.0, -3.0, dt)
     assert float(v) == 11.0 and float(a) == pytest.approx(2.0)
-    v, a = idm.hold_or_update(1, 2, 11.0, 99.0, 2.0, dt)
+    v, a = finalize.hold_or_update(1, 2, 11.0, 99.0, 2.0, dt)
     assert float(v) == 12.0 and float(a) == pytest.approx(2.0)
-    v, a = idm.hold_or_update(3, 2, 1.0, 99.0, -4.0, dt)
+    v, a = finalize.hold_or_update(3, 2, 1.0, 99.0, -4.0, dt)
     assert float(v) == 0.0 and float(a) == pytest.approx(-2.0)
 
 
@@ -308,7 +312,7 @@ def _replay_fn(dt: float, has_leader: bool, has_stop: bool):
                 v, to_stop, v_lane, ACCEL, DECEL, TAU, DELTA, dt, n, action_step=dt
             )
             v_safe = jnp.minimum(v_safe, v_stop)
-        v_next = idm.next_speed(
+        v_next = finalize.next_speed(
             v, v_safe, v_lane, ACCEL, DECEL, EMERGENCY_DECEL, dt, dt
         )
         dx = v_next * dt
