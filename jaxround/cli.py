@@ -450,7 +450,8 @@ def cmd_measure(args: argparse.Namespace) -> None:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> None:
-    from jaxround.calibrate import parse_param_names, run_calibration
+    from jaxround.calibrate import parse_param_names
+    from jaxround.calibration_job import run_calibration
     from jaxround.survey import load_survey
 
     names = parse_param_names(args.params)
