@@ -29,7 +29,7 @@ JAX function of the action. An update
 The dynamics trained on are relaxed: `relax_temperature` is written into
 every roundabout's `EnvParams`, above 0 the hard decisions (yielding at the
 entry, halting, arrival) are smooth so that more of the gradient gets
-through (`jaxround.relax`). A trained policy is evaluated on the exact,
+through (`jaxround.core.relax`). A trained policy is evaluated on the exact,
 SUMO-parity dynamics (temperature 0: `agents.evaluation`).
 
 Why long rollouts do not give NaN or exploding gradients here:
@@ -67,7 +67,7 @@ from agents import networks
 from agents.batch import AgentStep, BatchTrainer, agent_outcomes
 from agents.config import APGConfig
 from agents.losses import masked_mean
-from jaxround.state import EnvState
+from jaxround.core.state import EnvState
 
 #: Per-update metrics, in the order of the CSV columns.
 METRICS = (

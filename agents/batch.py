@@ -27,9 +27,9 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from agents import networks
-from jaxround.config import ConfigError
-from jaxround.env import make
-from jaxround.state import EnvParams, EnvState
+from jaxround.core.state import EnvParams, EnvState
+from jaxround.envs.roundabout import make
+from jaxround.scenario.config import ConfigError
 
 #: Name of the mesh axis the roundabout batch is split over.
 BATCH_AXIS = "batch"

@@ -19,10 +19,14 @@ import numpy as np
 
 from agents.evaluation import switched_policy, with_observer
 from agents.export import load_policy
-from jaxround.assertiveness import assertive_impatience, assertive_tau, assertiveness
-from jaxround.config import ScenarioConfig
-from jaxround.env import make
-from jaxround.schedule import make_schedule
+from jaxround.envs.assertiveness import (
+    assertive_impatience,
+    assertive_tau,
+    assertiveness,
+)
+from jaxround.envs.roundabout import make
+from jaxround.scenario.config import ScenarioConfig
+from jaxround.scenario.schedule import make_schedule
 
 #: Distance bins to the yield line (m; negative: past it, in the ring).
 BINS = np.arange(-30.0, 46.0, 5.0)
@@ -97,7 +101,7 @@ def plot_behaviour(
     behaviour: dict[str, dict[str, np.ndarray]], path: Path, title: str
 ) -> None:
     """Speed, headway and impatience against the distance to the yield line."""
-    from jaxround.plots import plt
+    from jaxround.analysis.plots import plt
 
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8), constrained_layout=True)
     style = {"policy": ("tab:blue", "-"), "uncontrolled": ("tab:gray", "--")}

@@ -6,7 +6,7 @@
     apg = load_apg_config("apg_milan")          # the analytic-gradient trainer
 
 An unknown key, a value of the wrong type or out of range raises
-`jaxround.config.ConfigError` naming the field (``lr: -0.1, expected > 0``)
+`jaxround.scenario.config.ConfigError` naming the field (``lr: -0.1, expected > 0``)
 before anything runs. Derived numbers (`num_updates`, `minibatch_size`) are
 properties, never stored. `PPOConfig` and `APGConfig` share the scenario
 fields and their checks (`TrainerConfig`).
@@ -24,7 +24,7 @@ from typing import Any, ClassVar, TypeVar
 
 import yaml
 
-from jaxround.config import (
+from jaxround.scenario.config import (
     ACTIONS,
     OBSERVERS,
     REWARDS,
@@ -33,7 +33,7 @@ from jaxround.config import (
     config_from_dict,
     read_yaml,
 )
-from jaxround.config import load_config as load_scenario
+from jaxround.scenario.config import load_config as load_scenario
 
 #: Activations of the policy and value MLPs.
 ACTIVATIONS = ("tanh", "relu")

@@ -3,7 +3,7 @@
     summary = evaluate_policy("runs/ppo", load_config("milan"), [0, 0.5, 1], [0, 1])
 
 Every (penetration, seed) runs the very schedule SUMO runs
-(`jaxround.schedule.make_schedule`: one seed's AVs at 10% are a subset of its
+(`jaxround.scenario.schedule.make_schedule`: one seed's AVs at 10% are a subset of its
 AVs at 20%), twice: AVs driven by the policy, and AVs uncontrolled (their
 IDM vType, the environment's default) as the baseline. All runs go in one
 vmapped, jitted batch; a per-run flag picks the driver.
@@ -20,12 +20,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from agents.export import PolicyLayout, check_scenario, load_policy, policy_action
-from jaxround.config import ScenarioConfig, config_from_dict
-from jaxround.env import make
-from jaxround.metrics import class_metrics, mean_over_runs
-from jaxround.rollout import NO_COMMAND, Policy, run_episode, vehicle_records
-from jaxround.schedule import make_schedule
-from jaxround.state import EnvState
+from jaxround.analysis.metrics import class_metrics, mean_over_runs
+from jaxround.core.state import EnvState
+from jaxround.envs.rollout import NO_COMMAND, Policy, run_episode, vehicle_records
+from jaxround.envs.roundabout import make
+from jaxround.scenario.config import ScenarioConfig, config_from_dict
+from jaxround.scenario.schedule import make_schedule
 
 #: The two drivers of the AVs, in the order of the results.
 DRIVERS = ("policy", "uncontrolled")
@@ -49,7 +49,7 @@ def switched_policy(
 ) -> Policy:
     """The exported policy's deterministic action, or no command (uncontrolled:
     the AVs drive their vType) where `use_policy` is false. A
-    `jaxround.rollout.Policy`."""
+    `jaxround.envs.rollout.Policy`."""
 
     def act(obs: jax.Array, state: EnvState, key: jax.Array) -> jax.Array:
         del key
@@ -83,7 +83,7 @@ def evaluate_policy(
     Returns:
         ``{"scenario", "seeds", "policy": path, "layout": {...}, "results":
         {driver: {penetration: metrics}}}`` where metrics are
-        `jaxround.metrics.class_metrics` averaged over seeds, plus
+        `jaxround.analysis.metrics.class_metrics` averaged over seeds, plus
         ``collisions`` and ``slot_overflow`` (means over seeds; collisions
         None when the environment does not count them).
 
@@ -167,7 +167,7 @@ SUMMARY_COLUMNS = (
 
 def summary_rows(results: dict[str, dict[float, dict[str, Any]]]) -> list[list[str]]:
     """Rows of `SUMMARY_COLUMNS`: per penetration, the policy then the baseline."""
-    from jaxround.report import percent_label
+    from jaxround.analysis.report import percent_label
 
     def cell(x: Any, digits: int = 2) -> str:
         return "-" if x is None else f"{x:.{digits}f}"

@@ -38,7 +38,7 @@ POLICY_STEM = "policy"
 class PolicyLayout:
     """What a reader needs besides the weights to run the policy."""
 
-    observer: str  # name of the observer the policy reads (jaxround.observe)
+    observer: str  # name of the observer the policy reads (jaxround.envs.observe)
     obs_size: int  # numbers per observation row, D
     hidden: tuple[int, ...]  # MLP layer widths
     activation: str  # "tanh" or "relu"
@@ -152,7 +152,7 @@ def check_scenario(layout: PolicyLayout, cfg: Any) -> None:
 
     Args:
         layout: the policy's layout.
-        cfg: a `jaxround.config.ScenarioConfig`.
+        cfg: a `jaxround.scenario.config.ScenarioConfig`.
 
     Raises:
         ValueError: naming both scenarios.

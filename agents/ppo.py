@@ -45,7 +45,7 @@ from agents.batch import (
 )
 from agents.config import PPOConfig
 from agents.losses import Batch, compute_gae, masked_mean, ppo_loss
-from jaxround.state import EnvState
+from jaxround.core.state import EnvState
 
 #: Per-update metrics, in the order of the CSV columns.
 METRICS = (

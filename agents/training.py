@@ -47,7 +47,7 @@ from agents.config import (
     trainer_config_from_dict,
 )
 from agents.export import POLICY_STEM, PolicyLayout, export_policy
-from jaxround.config import ConfigError, read_yaml
+from jaxround.scenario.config import ConfigError, read_yaml
 
 #: Files and folders a training run writes into its folder.
 RUN_FILES = (
@@ -155,9 +155,9 @@ def policy_layout(trainer: BatchTrainer) -> PolicyLayout:
 
 def action_bounds(scenario: Any) -> tuple[float, float]:
     """The exported policy's action bounds: the AV's [-decel, accel] for a
-    speed command, `jaxround.assertiveness.RAW_BOUND` for assertiveness."""
+    speed command, `jaxround.envs.assertiveness.RAW_BOUND` for assertiveness."""
     if scenario.agent.action == "assertiveness":
-        from jaxround.assertiveness import RAW_BOUND
+        from jaxround.envs.assertiveness import RAW_BOUND
 
         return (-RAW_BOUND, RAW_BOUND)
     return (-scenario.drivers.av.decel, scenario.drivers.av.accel)

@@ -15,7 +15,7 @@ __all__ = ["RoundaboutEnv", "make"]
 
 def __getattr__(name: str) -> Any:
     if name in __all__:
-        from jaxround import env
+        from jaxround.envs import roundabout as env
 
         return getattr(env, name)
     raise AttributeError(f"module 'jaxround' has no attribute {name!r}")

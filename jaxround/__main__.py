@@ -2,6 +2,6 @@
 
 import sys
 
-from jaxround.cli import main
+from jaxround.apps.cli.main import main
 
 sys.exit(main())

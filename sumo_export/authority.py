@@ -33,9 +33,10 @@ from typing import Any
 
 import numpy as np
 
-from jaxround.config import ScenarioConfig, load_config
-from jaxround.metrics import VehicleRecords, class_metrics
-from jaxround.schedule import Schedule, make_schedule
+from jaxround.analysis.metrics import class_metrics
+from jaxround.scenario.config import ScenarioConfig, load_config
+from jaxround.scenario.records import VehicleRecords
+from jaxround.scenario.schedule import Schedule, make_schedule
 from sumo_export.runner import run_many, sumo_arguments
 from sumo_export.scenario import AV_TYPE, write_scenario
 

@@ -14,7 +14,7 @@ After every SUMO step the controller
    [-decel, accel] and the speed kept at or above ``max(v - decel * dt, 0)``;
    a NaN ``a`` releases the AV to its vType (``setSpeed(-1)``). SUMO's
    default speed mode 31 stays on: SUMO applies the command while the AV
-   plans and clamps it by its safe speed, as `jaxround.command` does in JAX.
+   plans and clamps it by its safe speed, as `jaxround.core.command` does in JAX.
    (``setAcceleration(a, dt)`` gave the same speeds to the last digit;
    ``setSpeed`` says what `commanded_speed` computes. A command holds until
    released with ``setSpeed(-1)``.)
@@ -34,10 +34,10 @@ from typing import Any
 
 import numpy as np
 
-from jaxround.assertiveness import TAU_RANGE
-from jaxround.config import ScenarioConfig
-from jaxround.observe import OBSERVATION_SIZES
-from jaxround.schedule import Schedule
+from jaxround.envs.assertiveness import TAU_RANGE
+from jaxround.envs.observe import OBSERVATION_SIZES
+from jaxround.scenario.config import ScenarioConfig
+from jaxround.scenario.schedule import Schedule
 from sumo_export.traffic import (
     DEFAULT_SLOTS,
     SumoObserver,
@@ -58,7 +58,7 @@ class PolicyController:
         cfg: the scenario.
         schedule: the schedule SUMO runs (routes and classes of its vehicles).
         act: the policy, ``act(obs (n, D), mask (n,)) -> (accel (n,), change (n,))``.
-        observer: the observer the policy reads (`jaxround.observe`).
+        observer: the observer the policy reads (`jaxround.envs.observe`).
         max_slots: vehicle slots M; vehicles beyond them drive uncontrolled
             (their IDM) and are counted in ``report()["overflow_vehicle_steps"]``.
         strict: raise OverflowError instead of counting when the slots overflow.
@@ -197,7 +197,7 @@ class PolicyController:
 
     def retune(self, libsumo: Any, traffic: SumoTraffic, raw: np.ndarray) -> None:
         """Set each AV's tau and impatience for the next step from its raw
-        action (`jaxround.assertiveness`; `set_tau_and_impatience`, only
+        action (`jaxround.envs.assertiveness`; `set_tau_and_impatience`, only
         where they change).
 
         Args:
@@ -297,7 +297,7 @@ def commanded_speed(
     """The speed an AV is commanded for the next step, float (n,).
 
     ``v + clip(a, -decel, max_accel) * dt``, at least ``max(v - decel * dt, 0)``
-    (`jaxround.command.commanded_speed`, which the JAX environment applies as
+    (`jaxround.core.command.commanded_speed`, which the JAX environment applies as
     SUMO does); NaN where ``a`` is NaN: no command.
     """
     a = np.clip(accel, -decel, max_accel)

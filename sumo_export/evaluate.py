@@ -13,9 +13,9 @@ from typing import Any
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaxround.config import ScenarioConfig
-from jaxround.metrics import class_metrics, mean_over_runs
-from jaxround.schedule import make_schedule
+from jaxround.analysis.metrics import class_metrics, mean_over_runs
+from jaxround.scenario.config import ScenarioConfig
+from jaxround.scenario.schedule import make_schedule
 from sumo_export.controller import PHASES, PolicyControllerFactory, policy_observer
 from sumo_export.runner import ControllerFactory, SumoRun, run_many
 from sumo_export.traffic import DEFAULT_SLOTS
@@ -102,7 +102,7 @@ def sumo_runs(
     Args:
         cfg: the scenario.
         penetrations: AV shares.
-        seeds: schedule seeds (`jaxround.schedule.make_schedule`).
+        seeds: schedule seeds (`jaxround.scenario.schedule.make_schedule`).
         workers: SUMO processes side by side; defaults to the CPUs.
         show_progress: a progress bar on stderr.
         controller: drives the AVs of every run (built in each worker, see
@@ -172,7 +172,7 @@ def sumo_policy_sweep(
 
     Returns:
         ``{penetration: summarise_runs(...)}``: "mean" holds the class
-        metrics (`jaxround.metrics.class_metrics`, mean over seeds), the
+        metrics (`jaxround.analysis.metrics.class_metrics`, mean over seeds), the
         safety counters (totals) and "controller" (`controller_summary`).
 
     Raises:

@@ -1,6 +1,6 @@
 """The traffic survey of SUMO runs: what `jaxround measure` writes as targets.
 
-Per leg and per 10-minute slot (`jaxround.survey` has the definitions): mean
+Per leg and per 10-minute slot (`jaxround.analysis.survey` has the definitions): mean
 and largest queue, upstream and downstream flow, averaged over the seeds'
 schedules, with the human drivers' numbers of the scenario given.
 """
@@ -11,9 +11,15 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from jaxround.config import ScenarioConfig
-from jaxround.schedule import Schedule, make_schedule
-from jaxround.survey import CALIBRATABLE, SLOT_S, Survey, slot_flows, slot_queues
+from jaxround.analysis.survey import (
+    CALIBRATABLE,
+    SLOT_S,
+    Survey,
+    slot_flows,
+    slot_queues,
+)
+from jaxround.scenario.config import ScenarioConfig
+from jaxround.scenario.schedule import Schedule, make_schedule
 from sumo_export.runner import SumoRun, run_many
 
 

@@ -17,7 +17,7 @@ writes into the folder, with the prefix ``sumo_policy``:
 - ``sumo_policy.png``: emission score, consumption score and crossing time
   against penetration (the paper's Figure 3), JAX beside SUMO when given.
 
-The first three tables are `jaxround.report.write_tables`' own.
+The first three tables are `jaxround.analysis.report.write_tables`' own.
 """
 
 from __future__ import annotations
@@ -25,15 +25,15 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from jaxround.config import ScenarioConfig
-from jaxround.plots import plot_sweep
-from jaxround.report import (
+from jaxround.analysis.plots import plot_sweep
+from jaxround.analysis.report import (
     csv_table,
     markdown_table,
     percent_label,
     write_json,
     write_tables,
 )
+from jaxround.scenario.config import ScenarioConfig
 
 PREFIX = "sumo_policy"
 CONTROLLER_COLUMNS = (

@@ -22,10 +22,10 @@ from typing import Any
 
 import numpy as np
 
-from jaxround.config import ScenarioConfig
-from jaxround.metrics import VehicleRecords
-from jaxround.schedule import Schedule
-from sumo_export.network import in_edge
+from jaxround.scenario.config import ScenarioConfig
+from jaxround.scenario.edges import in_edge
+from jaxround.scenario.records import VehicleRecords
+from jaxround.scenario.schedule import Schedule
 from sumo_export.scenario import vehicle_id, write_scenario
 
 #: Extra simulated time after the demand horizon for the last vehicles to leave.

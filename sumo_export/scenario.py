@@ -7,9 +7,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
-from jaxround.config import DriverConfig, ScenarioConfig
-from jaxround.schedule import Schedule
-from sumo_export.network import build_network, route_edges
+from jaxround.scenario.config import DriverConfig, ScenarioConfig
+from jaxround.scenario.edges import route_edges
+from jaxround.scenario.schedule import Schedule
+from jaxround.sumo_files.netconvert import build_network
 
 HV_TYPE = "hv"
 AV_TYPE = "av"

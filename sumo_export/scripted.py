@@ -1,4 +1,4 @@
-"""Scripted controllers (`jaxround.scripted`) driving SUMO's AVs.
+"""Scripted controllers (`jaxround.envs.scripted`) driving SUMO's AVs.
 
     runs = run_many(cfg, schedules, controller=ScriptedControllerFactory("eco"))
 
@@ -15,9 +15,9 @@ from dataclasses import dataclass
 import jax
 import numpy as np
 
-from jaxround.config import ScenarioConfig
-from jaxround.schedule import Schedule
-from jaxround.scripted import controller_from_spec
+from jaxround.envs.scripted import controller_from_spec
+from jaxround.scenario.config import ScenarioConfig
+from jaxround.scenario.schedule import Schedule
 from sumo_export.controller import PolicyController, PolicyFn
 from sumo_export.traffic import DEFAULT_SLOTS, synchronous_cpu_dispatch
 
@@ -27,7 +27,7 @@ def scripted_policy(spec: str, dt_s: float) -> PolicyFn:
     of a scripted controller; it never changes lanes.
 
     Raises:
-        ValueError: a bad spec (`jaxround.scripted.controller_from_spec`).
+        ValueError: a bad spec (`jaxround.envs.scripted.controller_from_spec`).
     """
     act = jax.jit(controller_from_spec(spec, dt_s=dt_s).act)
 

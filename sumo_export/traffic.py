@@ -29,11 +29,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxround.config import ScenarioConfig
-from jaxround.env import RoundaboutEnv, make
-from jaxround.observe import OBSERVATION_SIZES
-from jaxround.schedule import Schedule
-from jaxround.state import EnvParams, EnvState
+from jaxround.core.state import EnvParams, EnvState
+from jaxround.envs.observe import OBSERVATION_SIZES
+from jaxround.envs.roundabout import RoundaboutEnv, make
+from jaxround.scenario.config import ScenarioConfig
+from jaxround.scenario.schedule import Schedule
 from sumo_export.scenario import vehicle_id
 
 #: Columns of the packed state handed to the jitted observer.
@@ -80,7 +80,7 @@ class SumoObserver:
     Args:
         cfg: the scenario.
         schedule: the schedule SUMO runs (routes and classes of its vehicles).
-        observer: the observer's name (`jaxround.observe`).
+        observer: the observer's name (`jaxround.envs.observe`).
         max_slots: vehicle slots M; vehicles beyond them get no slot and are
             counted in `overflow_vehicle_steps`.
         strict: raise OverflowError instead of counting when the slots overflow.

@@ -1,4 +1,4 @@
-"""The all-pairs neighbour searches the step used before `jaxround.neighbours`.
+"""The all-pairs neighbour searches the step used before `jaxround.core.neighbours`.
 
 Kept as they were at commit b6603e8, for the tests to compare the tables
 with: every pair of slots, and for the rearmost vehicle every pair for every
@@ -10,11 +10,11 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from jaxround import idm
-from jaxround.geometry import FAR, NetArrays, locate, project
-from jaxround.insertion import STOP_OFFSET
-from jaxround.observe import DISTANCE_SCALE, MISSING, RING_HORIZON_S, SPEED_SCALE
-from jaxround.state import EnvParams, EnvState
+from jaxround.core import idm
+from jaxround.core.geometry import FAR, NetArrays, locate, project
+from jaxround.core.insertion import STOP_OFFSET
+from jaxround.core.state import EnvParams, EnvState
+from jaxround.envs.observe import DISTANCE_SCALE, MISSING, RING_HORIZON_S, SPEED_SCALE
 
 
 def rearmost_on(

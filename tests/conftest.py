@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import yaml
 
-from jaxround.config import ScenarioConfig, config_from_dict
+from jaxround.scenario.config import ScenarioConfig, config_from_dict
 
 
 def builtin_dict(name: str = "milan") -> dict[str, Any]:

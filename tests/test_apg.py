@@ -31,8 +31,8 @@ from agents.config import (
 )
 from agents.export import load_policy, load_policy_numpy
 from agents.training import compiled_trainer, csv_columns, load_run_config, read_csv
-from jaxround.cli import main
-from jaxround.config import AgentConfig, ConfigError
+from jaxround.apps.cli.main import main
+from jaxround.scenario.config import AgentConfig, ConfigError
 from tests.conftest import quick_compilation
 
 #: The tiny run: milan's network, 9 vehicles in 20 s, 10 s episodes (20 steps),

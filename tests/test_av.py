@@ -8,14 +8,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxround import command as traci
-from jaxround import observe
-from jaxround.config import ConfigError, config_from_dict
-from jaxround.env import make
-from jaxround.parity import parity_report
-from jaxround.reward import av_reward, reference_pollution, system_reward
-from jaxround.rollout import make_episode_runner, vehicle_records
-from jaxround.schedule import make_schedule
+from jaxround.apps.parity import parity_report
+from jaxround.core import command as traci
+from jaxround.envs import observe
+from jaxround.envs.reward import av_reward, reference_pollution, system_reward
+from jaxround.envs.rollout import make_episode_runner, vehicle_records
+from jaxround.envs.roundabout import make
+from jaxround.scenario.config import ConfigError, config_from_dict
+from jaxround.scenario.schedule import make_schedule
 from tests.conftest import builtin_dict, small_config
 
 DT = 0.5

@@ -12,15 +12,15 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxround import bare_ring
-from jaxround.bench import (
+from jaxround.apps import bare_ring
+from jaxround.apps.bench import (
     batch_schedules,
     format_benchmark,
     run_benchmark,
     usable_cpus,
 )
-from jaxround.env import make
-from jaxround.schedule import make_schedule
+from jaxround.envs.roundabout import make
+from jaxround.scenario.schedule import make_schedule
 from tests.conftest import quick_compilation, small_config
 
 BATCHES = (4,)

@@ -8,7 +8,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from jaxround.cli import main, percent_list
+from jaxround.apps.cli.arguments import percent_list
+from jaxround.apps.cli.main import main
 from tests.conftest import builtin_dict
 
 

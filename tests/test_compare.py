@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from jaxround.compare import mean_ci, paired_difference, t95
-from jaxround.metrics import VehicleRecords
+from jaxround.analysis.compare import mean_ci, paired_difference, t95
+from jaxround.scenario.records import VehicleRecords
 
 
 def records(

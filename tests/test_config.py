@@ -6,7 +6,12 @@ from pathlib import Path
 
 import pytest
 
-from jaxround.config import ConfigError, builtin_configs, config_from_dict, load_config
+from jaxround.scenario.config import (
+    ConfigError,
+    builtin_configs,
+    config_from_dict,
+    load_config,
+)
 
 
 def test_builtin_scenarios_load() -> None:

@@ -17,8 +17,8 @@ import pytest
 
 from agents.evaluation import switched_policy
 from agents.export import PolicyLayout, export_policy, load_policy
-from jaxround.env import make
-from jaxround.schedule import make_schedule
+from jaxround.envs.roundabout import make
+from jaxround.scenario.schedule import make_schedule
 from sumo_export.controller import PolicyController, commanded_speed
 from sumo_export.runner import run_schedule
 from sumo_export.scenario import vehicle_id

@@ -1,4 +1,4 @@
-"""The demand's score-function gradient (`jaxround.demand_gradient`): exact in
+"""The demand's score-function gradient (`jaxround.analysis.demand_gradient`): exact in
 expectation against an analytic case, and consistent with finite differences
 of the batch mean through whole rollouts."""
 
@@ -9,9 +9,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxround import demand_gradient as dg
-from jaxround.env import RoundaboutEnv, make
-from jaxround.state import EnvParams
+from jaxround.analysis import demand_gradient as dg
+from jaxround.core.state import EnvParams
+from jaxround.envs.roundabout import RoundaboutEnv, make
 from tests.conftest import small_config
 
 

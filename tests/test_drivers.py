@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 from agents.export import PolicyLayout, export_policy
-from jaxround.config import config_from_dict
-from jaxround.drivers import parse_driver
-from jaxround.env import make
-from jaxround.parity import parity_report
-from jaxround.rollout import run_until_left, uncontrolled_policy
-from jaxround.schedule import make_schedule
+from jaxround.apps.drivers import parse_driver
+from jaxround.apps.parity import parity_report
+from jaxround.envs.rollout import run_until_left, uncontrolled_policy
+from jaxround.envs.roundabout import make
+from jaxround.scenario.config import config_from_dict
+from jaxround.scenario.schedule import make_schedule
 from tests.conftest import small_config, tree_equal
 
 

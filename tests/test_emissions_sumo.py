@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxround import emissions
+from jaxround.core import emissions
 
 DT = 0.5
 G_SIN = 9.80665 * math.sin(math.radians(2.0))  # a' - a on a 2 deg uphill

@@ -1,4 +1,4 @@
-"""The gymnax-style JAX environment (`jaxround.env`).
+"""The gymnax-style JAX environment (`jaxround.envs.roundabout`).
 
 API shapes, jit and vmap (over states, keys and params), the automatic reset,
 determinism, the JAX schedule draw, full vehicle slots, a long run at twice
@@ -19,14 +19,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxround.config import ScenarioConfig, config_from_dict, load_config
-from jaxround.env import RoundaboutEnv, make
-from jaxround.network import CompiledNetwork
-from jaxround.rollout import make_episode_runner, vehicle_records
-from jaxround.sampling import inverse_cdf, smallest_k, sorted_uniform
-from jaxround.schedule import Schedule as NumpySchedule
-from jaxround.schedule import make_schedule, n_av_at
-from jaxround.state import EnvParams, EnvState, Schedule
+from jaxround.core.network import CompiledNetwork
+from jaxround.core.sampling import inverse_cdf, smallest_k, sorted_uniform
+from jaxround.core.state import EnvParams, EnvState, Schedule
+from jaxround.envs.rollout import make_episode_runner, vehicle_records
+from jaxround.envs.roundabout import RoundaboutEnv, make
+from jaxround.scenario.config import ScenarioConfig, config_from_dict, load_config
+from jaxround.scenario.schedule import Schedule as NumpySchedule
+from jaxround.scenario.schedule import make_schedule, n_av_at
 from tests.conftest import builtin_dict, small_config, tree_equal
 
 #: The small scenario: milan's network and drivers, 36 vehicles in 90 s (0.4

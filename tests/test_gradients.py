@@ -14,11 +14,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxround.env import RoundaboutEnv, make
-from jaxround.rollout import make_episode_runner, uncontrolled_policy
-from jaxround.schedule import make_schedule
-from jaxround.state import EnvParams, EnvState
-from jaxround.survey import CALIBRATABLE, measured_rollout
+from jaxround.analysis.survey import CALIBRATABLE, measured_rollout
+from jaxround.core.state import EnvParams, EnvState
+from jaxround.envs.rollout import make_episode_runner, uncontrolled_policy
+from jaxround.envs.roundabout import RoundaboutEnv, make
+from jaxround.scenario.schedule import make_schedule
 from tests.conftest import quick_compilation
 
 #: Steps of the window the gradients are taken over (10 s).

@@ -7,11 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jaxround import headroom
-from jaxround.compare import paired_difference
-from jaxround.headroom_plot import plot, table
-from jaxround.metrics import VehicleRecords
-from jaxround.schedule import make_schedule
+from jaxround.analysis.compare import paired_difference
+from jaxround.analysis.headroom_plot import plot, table
+from jaxround.apps import headroom
+from jaxround.scenario.records import VehicleRecords
+from jaxround.scenario.schedule import make_schedule
 from tests.conftest import small_config
 
 

@@ -1,4 +1,4 @@
-"""SUMO 1.28's IDM speed update (jaxround.idm): hand values and SUMO parity.
+"""SUMO 1.28's IDM speed update (jaxround.core.idm): hand values and SUMO parity.
 
 The parity tests drive one IDM vehicle on a straight single-lane road in the
 real SUMO (libsumo, in-process) and replay its speed update with the JAX
@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxround import finalize, idm
+from jaxround.core import finalize, idm
 
 ACCEL = 1.7634
 DECEL = 4.2939

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from jaxround.metrics import (
+from jaxround.analysis.metrics import (
     VehicleRecords,
     class_metrics,
     mean_over_runs,

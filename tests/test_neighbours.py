@@ -15,10 +15,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxround import dynamics, neighbours, observe
-from jaxround.env import make
-from jaxround.geometry import back_projection, leaders, locate, project
-from jaxround.link_leaders import link_leader
+from jaxround.core import dynamics, neighbours
+from jaxround.core.geometry import back_projection, leaders, locate, project
+from jaxround.core.link_leaders import link_leader
+from jaxround.envs import observe
+from jaxround.envs.roundabout import make
 from tests import allpairs
 
 M = 24

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from jaxround.parity import parity_report
+from jaxround.apps.parity import parity_report
 from tests.conftest import small_config
 
 pytestmark = pytest.mark.sumo

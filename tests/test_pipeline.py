@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from jaxround.cli import main
+from jaxround.apps.cli.main import main
 from tests.conftest import builtin_dict
 
 pytestmark = pytest.mark.sumo

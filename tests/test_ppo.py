@@ -35,7 +35,7 @@ from agents.export import (
 )
 from agents.losses import Batch, compute_gae, ppo_loss
 from agents.ppo import Trainer
-from jaxround.config import ConfigError
+from jaxround.scenario.config import ConfigError
 from tests.conftest import quick_compilation, tree_equal
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -411,7 +411,7 @@ TWO_DEVICES = """
 import json, sys
 import jax, numpy as np
 from agents.ppo import Trainer
-from jaxround.config import ConfigError
+from jaxround.scenario.config import ConfigError
 from tests.conftest import tree_equal
 from tests.test_ppo import tiny_config
 

@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxround.reductions import first_min, two_smallest
+from jaxround.core.reductions import first_min, two_smallest
 
 
 def _assert_same(new: jax.Array, old: jax.Array, what: str) -> None:

@@ -1,4 +1,4 @@
-"""Pictures of the roundabout (`jaxround.render`).
+"""Pictures of the roundabout (`jaxround.analysis.render`).
 
 The states are written by hand (no step is compiled): vehicles on every kind
 of lane of Milan's network, AVs and human drivers, some halting, some due but
@@ -17,9 +17,10 @@ import matplotlib
 import numpy as np
 import pytest
 
-from jaxround import geometry, render
-from jaxround.env import RoundaboutEnv, make
-from jaxround.state import EnvParams, EnvState, Registrations, Schedule
+from jaxround.analysis import episode_movie, render
+from jaxround.core import geometry
+from jaxround.core.state import EnvParams, EnvState, Registrations, Schedule
+from jaxround.envs.roundabout import RoundaboutEnv, make
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -210,25 +211,25 @@ def test_animate_writes_a_multi_frame_gif(env: RoundaboutEnv, tmp_path: Path) ->
 
     frames = 4
     states = stack([hand_state(env, 2.0 * i, STEP + i) for i in range(frames)])
-    path = render.animate(env, states, tmp_path / "sub" / "a.gif", fps=5, dpi=30)
+    path = episode_movie.animate(env, states, tmp_path / "sub" / "a.gif", fps=5, dpi=30)
     with Image.open(path) as gif:
         assert gif.format == "GIF"
         assert gif.n_frames == frames
     with pytest.raises(ValueError, match=r"\.gif or an \.mp4"):
-        render.animate(env, states, tmp_path / "a.avi")
+        episode_movie.animate(env, states, tmp_path / "a.avi")
 
 
 def test_movie_formats(tmp_path: Path) -> None:
     from matplotlib import animation
 
-    assert isinstance(render.movie_writer("a.GIF"), animation.PillowWriter)
+    assert isinstance(episode_movie.movie_writer("a.GIF"), animation.PillowWriter)
     if animation.writers.is_available("ffmpeg"):
-        assert isinstance(render.movie_writer("a.mp4"), animation.FFMpegWriter)
+        assert isinstance(episode_movie.movie_writer("a.mp4"), animation.FFMpegWriter)
     else:
         with pytest.raises(ValueError, match="ffmpeg"):
-            render.movie_writer("a.mp4")
+            episode_movie.movie_writer("a.mp4")
     with pytest.raises(ValueError, match=r"\.gif or an \.mp4"):  # before any run
-        render.render_rollout(tmp_path / "a.webm")
+        episode_movie.render_rollout(tmp_path / "a.webm")
 
 
 def test_vehicle_counts_plot(env: RoundaboutEnv) -> None:
@@ -273,14 +274,14 @@ def test_rollout_states_keeps_every_kth_state(env: RoundaboutEnv) -> None:
     fake = CountingEnv(hand_state(env))
     params = env.default_params
     key = jax.random.PRNGKey(0)
-    states = render.rollout_states(fake, params, key, n_steps=11, every=3)
+    states = episode_movie.rollout_states(fake, params, key, n_steps=11, every=3)
     assert render.n_frames(states) == 4  # after 0, 3, 6, 9 steps
     np.testing.assert_array_equal(states.step, [0, 3, 6, 9])
     np.testing.assert_allclose(states.pos[:, 0], [0, 3, 6, 9])
     assert states.schedule.depart_s.shape == (4, len(SCHEDULE))
-    again = render.rollout_states(
+    again = episode_movie.rollout_states(
         fake, params, key, n_steps=2, every=1, schedule=fake.state.schedule
     )
     np.testing.assert_allclose(again.pos[:, 0], [100, 101, 102])
     with pytest.raises(ValueError, match="n_steps"):
-        render.rollout_states(fake, params, key, n_steps=2, every=3)
+        episode_movie.rollout_states(fake, params, key, n_steps=2, every=3)

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jaxround.config import load_config
-from jaxround.schedule import Schedule, make_schedule, n_av_at
+from jaxround.scenario.config import load_config
+from jaxround.scenario.schedule import Schedule, make_schedule, n_av_at
 
 
 @pytest.mark.parametrize(

@@ -9,11 +9,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxround.env import make
-from jaxround.metrics import class_metrics
-from jaxround.observe import DISTANCE_SCALE, RING_HORIZON_S, SPEED_SCALE
-from jaxround.schedule import make_schedule
-from jaxround.scripted import (
+from jaxround.analysis.metrics import class_metrics
+from jaxround.envs.observe import DISTANCE_SCALE, RING_HORIZON_S, SPEED_SCALE
+from jaxround.envs.roundabout import make
+from jaxround.envs.scripted import (
     LEADER_GAP,
     LEADER_REL_SPEED,
     NO_COMMAND,
@@ -23,6 +22,7 @@ from jaxround.scripted import (
     controller_from_spec,
     is_scripted_spec,
 )
+from jaxround.scenario.schedule import make_schedule
 from sumo_export.controller import PolicyController
 from sumo_export.runner import run_schedule
 from sumo_export.scripted import ScriptedControllerFactory, scripted_policy

@@ -24,8 +24,8 @@ from pathlib import Path
 
 import pytest
 
-from jaxround.cli import main
-from jaxround.config import load_config
+from jaxround.apps.cli.main import main
+from jaxround.scenario.config import load_config
 from jaxround.study.load import free_port, write_standin_policy
 from jaxround.study.storage import StudyDatabase
 

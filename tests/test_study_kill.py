@@ -22,7 +22,7 @@ from typing import Any
 import pytest
 from websockets.sync.client import connect
 
-from jaxround.config import load_config
+from jaxround.scenario.config import load_config
 from jaxround.study.load import free_port, write_standin_policy
 from jaxround.study.storage import StudyDatabase
 

@@ -10,7 +10,7 @@ import json
 
 import pytest
 
-from jaxround.cli import main
+from jaxround.apps.cli.main import main
 
 pytestmark = pytest.mark.sumo
 

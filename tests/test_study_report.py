@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from jaxround.cli import main
+from jaxround.apps.cli.main import main
 from jaxround.study.protocol import MAX_MESSAGE_BYTES, BadMessageError, parse_message
 from jaxround.study.questions import PAPER_COUNTS, paper_option, worded_questions
 from jaxround.study.report import build_report, sign_test

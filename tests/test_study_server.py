@@ -23,7 +23,7 @@ from fastapi import FastAPI
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 
-from jaxround.config import load_config
+from jaxround.scenario.config import load_config
 from jaxround.study.load import free_port, write_standin_policy
 from jaxround.study.protocol import MAX_MESSAGE_BYTES, MAX_MESSAGES_PER_S
 from jaxround.study.server import create_app

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jaxround.config import load_config
-from jaxround.schedule import make_schedule
+from jaxround.scenario.config import load_config
+from jaxround.scenario.schedule import make_schedule
 from jaxround.study.sim import (
     EGO_ACCEL_MPS2,
     EGO_BRAKE_MPS2,

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 import sumolib
 
-from jaxround.config import load_config
-from jaxround.metrics import class_metrics
-from jaxround.schedule import make_schedule
+from jaxround.analysis.metrics import class_metrics
+from jaxround.scenario.config import load_config
+from jaxround.scenario.edges import route_edges
+from jaxround.scenario.schedule import make_schedule
 from sumo_export.evaluate import sumo_sweep
-from sumo_export.network import route_edges
 from sumo_export.runner import run_schedule
 from sumo_export.scenario import vehicle_id, write_scenario
 from tests.conftest import small_config

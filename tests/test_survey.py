@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 import yaml
 
-from jaxround.calibrate import parse_param_names, survey_loss
-from jaxround.cli import main
-from jaxround.config import ConfigError
-from jaxround.env import make
-from jaxround.schedule import make_schedule
-from jaxround.survey import MEASURES, jax_survey, load_survey
+from jaxround.analysis.calibrate import parse_param_names, survey_loss
+from jaxround.analysis.survey import MEASURES, jax_survey, load_survey
+from jaxround.apps.cli.main import main
+from jaxround.envs.roundabout import make
+from jaxround.scenario.config import ConfigError
+from jaxround.scenario.schedule import make_schedule
 from sumo_export.measure import sumo_survey
 from tests.conftest import small_config
 

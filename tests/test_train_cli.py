@@ -17,7 +17,7 @@ import yaml
 
 from agents.config import load_ppo_config
 from agents.training import CSV_COLUMNS, read_csv, train_to_dir
-from jaxround.cli import main
+from jaxround.apps.cli.main import main
 from tests.conftest import builtin_dict, quick_compilation
 from tests.test_ppo import tiny_config
 

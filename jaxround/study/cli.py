@@ -17,8 +17,8 @@ if TYPE_CHECKING:
 
 
 def _usage_error(message: str) -> Exception:
-    """`jaxround.cli.UsageError` (imported late: that module imports this one)."""
-    from jaxround.cli import UsageError
+    """`cli.arguments.UsageError`, imported late (the CLI imports this module)."""
+    from jaxround.apps.cli.arguments import UsageError
 
     return UsageError(message)
 
@@ -45,7 +45,7 @@ def _seconds(text: str) -> float:
 
 def cmd_serve(args: argparse.Namespace) -> None:
     from agents.export import check_scenario, load_policy
-    from jaxround.config import load_config
+    from jaxround.scenario.config import load_config
     from jaxround.study.storage import StudyDatabase
     from sumo_export.controller import policy_observer
 
@@ -119,7 +119,7 @@ def _database(path: Path) -> StudyDatabase:
 
 
 def cmd_export(args: argparse.Namespace) -> None:
-    from jaxround.cli import fresh_output_dir
+    from jaxround.apps.cli.arguments import fresh_output_dir
     from jaxround.study.storage import export_names
 
     database = _database(args.db)
@@ -129,7 +129,7 @@ def cmd_export(args: argparse.Namespace) -> None:
 
 
 def cmd_report(args: argparse.Namespace) -> None:
-    from jaxround.cli import fresh_output_dir
+    from jaxround.apps.cli.arguments import fresh_output_dir
     from jaxround.study.report import REPORT_FILES, tables_markdown, write_report
 
     database = _database(args.db)

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from jaxround.config import ScenarioConfig, load_config
+from jaxround.scenario.config import ScenarioConfig, load_config
 from jaxround.study.settings import MAX_PARTICIPANTS_LIMIT
 from jaxround.study.storage import StudyDatabase
 from jaxround.study.telemetry import percentile
@@ -51,7 +51,7 @@ def write_standin_policy(folder: Path, cfg: ScenarioConfig) -> Path:
     acceleration (the AVs' IDM caps it), with the layout `jaxround train`
     gives by default (configs/ppo_milan.yaml: two tanh layers of 32)."""
     from agents.export import PolicyLayout, export_policy
-    from jaxround.observe import OBSERVATION_SIZES
+    from jaxround.envs.observe import OBSERVATION_SIZES
 
     observer = cfg.agent.observer
     layout = PolicyLayout(

@@ -13,8 +13,8 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
 
-from jaxround.config import ScenarioConfig
-from sumo_export.network import build_network
+from jaxround.scenario.config import ScenarioConfig
+from jaxround.sumo_files.netconvert import build_network
 
 #: SUMO's lane width when the network does not give one, m.
 DEFAULT_LANE_WIDTH_M = 3.2

@@ -34,7 +34,7 @@ from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, ConfigDict, Field
 from starlette.websockets import WebSocketDisconnect
 
-from jaxround.config import load_config
+from jaxround.scenario.config import load_config
 from jaxround.study.protocol import MAX_MESSAGES_PER_S, BadMessageError, parse_message
 from jaxround.study.questions import ORDERS, QUESTION_IDS, ride_label, worded_questions
 from jaxround.study.rides import BusyError, Ride, RideManager

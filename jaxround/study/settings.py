@@ -6,7 +6,7 @@ import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
-from jaxround.config import ScenarioConfig
+from jaxround.scenario.config import ScenarioConfig
 
 #: The two AV shares of the paper's rides (its Tables 5-7 compare them).
 LOW_SHARE = 0.2

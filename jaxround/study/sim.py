@@ -36,9 +36,9 @@ from typing import Any
 
 import numpy as np
 
-from jaxround.config import ScenarioConfig, load_config
-from jaxround.schedule import Schedule, make_schedule
-from sumo_export.network import route_edges
+from jaxround.scenario.config import ScenarioConfig, load_config
+from jaxround.scenario.edges import route_edges
+from jaxround.scenario.schedule import Schedule, make_schedule
 from sumo_export.scenario import vehicle_id, write_scenario
 
 #: Ego acceleration at full throttle and deceleration at full brake, m/s^2.

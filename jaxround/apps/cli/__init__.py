@@ -1,0 +1,1 @@
+"""The `jaxround` command line (`main`), one module per group of subcommands."""

@@ -1,0 +1,123 @@
+"""The command line's argument types, shared options and output helpers.
+
+Penetrations on the command line are percentages (0-100), as in the paper's
+tables; in config files they are shares (0-1).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from jaxround.scenario.config import ScenarioConfig
+
+
+class UsageError(ValueError):
+    """A command-line value is wrong; reported without a traceback."""
+
+
+def percent(text: str) -> float:
+    """A penetration in percent -> share in [0, 1]."""
+    try:
+        x = float(text.rstrip("%"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0.0 <= x <= 100.0:
+        raise argparse.ArgumentTypeError(
+            f"{text}: a penetration is a percentage, 0-100"
+        )
+    return x / 100.0
+
+
+def percent_list(text: str) -> list[float]:
+    """'0,10,...,100' or '0,50,100' -> shares."""
+    parts = [p.strip() for p in text.split(",") if p.strip()]
+    if "..." in parts:
+        i = parts.index("...")
+        if i < 2 or i != len(parts) - 2:
+            raise argparse.ArgumentTypeError("use 'a,b,...,z' with a step given by a,b")
+        a, b, z = float(parts[0]), float(parts[1]), float(parts[-1])
+        step = b - a
+        if step <= 0:
+            raise argparse.ArgumentTypeError(f"{text}: the step must be positive")
+        values = []
+        x = a
+        while x <= z + 1e-9:
+            values.append(x)
+            x += step
+        parts = [str(v) for v in values]
+    shares = [percent(p) for p in parts]
+    if not shares:
+        raise argparse.ArgumentTypeError("no penetration given")
+    return sorted(set(shares))
+
+
+def positive_int(text: str) -> int:
+    return _int_at_least(text, 1, "at least 1")
+
+
+def non_negative_int(text: str) -> int:
+    return _int_at_least(text, 0, "0 or more")
+
+
+def _int_at_least(text: str, low: int, expected: str) -> int:
+    try:
+        x = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if x < low:
+        raise argparse.ArgumentTypeError(f"{text}: expected {expected}")
+    return x
+
+
+def fresh_output_dir(path: Path, force: bool, would_write: Sequence[str]) -> Path:
+    """Create `path`; refuse to overwrite any of `would_write` in it unless forced."""
+    if path.exists() and not path.is_dir():
+        raise UsageError(f"--out {path}: exists and is not a folder")
+    clash = [name for name in would_write if (path / name).exists()]
+    if clash and not force:
+        raise UsageError(
+            f"--out {path}: already holds {', '.join(clash)}; choose another folder "
+            "or pass --force to overwrite"
+        )
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def seeds_of(cfg: ScenarioConfig, k: int) -> list[int]:
+    """K consecutive seeds starting at the config's seed."""
+    return [cfg.simulation.seed + i for i in range(k)]
+
+
+def print_json(obj: object) -> None:
+    json.dump(obj, sys.stdout, indent=2)
+    sys.stdout.write("\n")
+
+
+def workers_option(p: argparse.ArgumentParser) -> None:
+    """--workers: SUMO processes side by side."""
+    p.add_argument(
+        "--workers",
+        type=positive_int,
+        default=None,
+        help="SUMO processes side by side (default: CPUs)",
+    )
+
+
+def sumo_run_options(p: argparse.ArgumentParser) -> None:
+    """--workers, --json and --no-progress of the commands that run SUMO."""
+    workers_option(p)
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def config_option(p: argparse.ArgumentParser) -> None:
+    """--config: the scenario."""
+    p.add_argument(
+        "--config",
+        default=None,
+        help="scenario YAML file or built-in name (default: milan)",
+    )

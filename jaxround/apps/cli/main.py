@@ -1,0 +1,44 @@
+"""The `jaxround` command: one entry point, one subcommand per job.
+
+The subcommands live in `simulate`, `training`, `calibration` and
+`jaxround.study.cli`; each module adds its own parsers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from jaxround.apps.cli import calibration, simulate, training
+from jaxround.apps.cli.arguments import UsageError
+from jaxround.scenario.config import ConfigError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="jaxround",
+        description="JAX roundabout environment, SUMO runs and the paper's evaluation.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    training.add_parsers(sub)
+    simulate.add_parsers(sub)
+    calibration.add_parsers(sub)
+    from jaxround.study.cli import add_study_parser
+
+    add_study_parser(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        args.func(args)
+    except (ConfigError, UsageError) as err:
+        print(f"jaxround {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

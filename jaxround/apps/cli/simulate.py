@@ -1,0 +1,195 @@
+"""Commands that run the scenario: `scenario`, `sumo`, `parity`, `bench`, `render`."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from jaxround.analysis.report import percent_label
+from jaxround.apps.cli.arguments import (
+    UsageError,
+    config_option,
+    fresh_output_dir,
+    non_negative_int,
+    percent,
+    positive_int,
+    print_json,
+    seeds_of,
+    sumo_run_options,
+)
+from jaxround.scenario.config import load_config
+
+
+def cmd_scenario(args: argparse.Namespace) -> None:
+    from jaxround.scenario.schedule import make_schedule
+    from sumo_export.scenario import write_scenario
+
+    cfg = load_config(args.config)
+    stem = cfg.name
+    out = fresh_output_dir(
+        args.out,
+        args.force,
+        [
+            f"{stem}.net.xml",
+            f"{stem}.rou.xml",
+            f"{stem}.sumocfg",
+            f"{stem}.schedule.npz",
+        ],
+    )
+    seed = cfg.simulation.seed if args.seed is None else args.seed
+    p = cfg.simulation.penetration if args.penetration is None else args.penetration
+    cfg = cfg.with_overrides(seed=seed, penetration=p)
+    schedule = make_schedule(cfg)
+    files = write_scenario(cfg, schedule, out)
+    print(f"wrote {files.net}\n      {files.routes}\n      {files.sumocfg}")
+    print(
+        f"{schedule.n_vehicles} vehicles, {schedule.n_av} AVs, seed {seed}; "
+        f"open with: sumo-gui -c {files.sumocfg}"
+    )
+
+
+def cmd_sumo(args: argparse.Namespace) -> None:
+    from sumo_export.evaluate import sumo_sweep
+
+    cfg = load_config(args.config)
+    p = cfg.simulation.penetration if args.penetration is None else args.penetration
+    sweep = sumo_sweep(
+        cfg,
+        [p],
+        seeds_of(cfg, args.seeds),
+        workers=args.workers,
+        show_progress=not args.no_progress,
+    )
+    result = sweep[p]
+    if args.json:
+        print_json(result)
+        return
+    from jaxround.analysis.report import (
+        ABSOLUTE_COLUMNS,
+        TABLE3_COLUMNS,
+        markdown_table,
+        table_rows,
+    )
+
+    rows = table_rows({p: result["mean"]})
+    print(markdown_table(TABLE3_COLUMNS, rows["table3"]))
+    print(markdown_table(ABSOLUTE_COLUMNS, rows["absolute"]))
+
+
+def cmd_parity(args: argparse.Namespace) -> None:
+    from jaxround.apps.parity import parity_report
+
+    cfg = load_config(args.config)
+    try:
+        report = parity_report(
+            cfg, seeds_of(cfg, args.seeds), workers=args.workers,
+            show_progress=not args.no_progress, penetration=args.penetration,
+            controller=args.controller,
+        )  # fmt: skip
+    except ValueError as err:
+        raise UsageError(str(err)) from None
+    if args.json:
+        print_json(report)
+        return
+    rows = [
+        ("mean crossing time (s)", "mean_crossing_time_s"),
+        ("CO2 (g/veh)", "co2_g_per_veh"),
+        ("fuel (g/veh)", "fuel_g_per_veh"),
+        ("arrived", "n_arrived"),
+    ]
+    who = (
+        "HV only"
+        if args.penetration == 0
+        else f"{percent_label(args.penetration)}% AVs ({report['controller']})"
+    )
+    print(f"{cfg.name}, {who}, seeds {report['seeds']}\n")
+    print("| metric | JAX | SUMO | rel. error |\n|---|---|---|---|")
+    for label, key in rows:
+        j, s_ = report["jax"]["all"][key], report["sumo"]["all"][key]
+        err = report["rel_err"][key]
+        print(f"| {label} | {j:.2f} | {s_:.2f} | {100 * err:.2f}% |")
+    print(
+        f"\nper-vehicle crossing time: median |error| "
+        f"{report['per_vehicle_median_abs_err_s']:.2f} s, "
+        f"90th percentile {report['per_vehicle_p90_abs_err_s']:.2f} s, "
+        f"exactly equal {100 * report['per_vehicle_exact_share']:.1f}%"
+    )
+    print(
+        f"not arrived by {report['cap_s']:.0f} s: JAX {report['jax_not_arrived']}, "
+        f"SUMO {report['sumo_not_arrived']}; JAX slot overflow "
+        f"{report['jax_slot_overflow']} vehicle-steps"
+    )
+
+
+def cmd_bench(args: argparse.Namespace) -> None:
+    from jaxround.apps.bench import format_benchmark, run_benchmark
+
+    cfg = load_config(args.config)
+    result = run_benchmark(cfg, progress=not args.no_progress)
+    if args.json:
+        print_json(result)
+    else:
+        print(format_benchmark(result))
+
+
+def cmd_render(args: argparse.Namespace) -> None:
+    from jaxround.analysis.episode_movie import render_rollout
+
+    try:
+        path = render_rollout(
+            args.out, scenario=args.config or "milan", seconds=args.seconds,
+            every=args.every, penetration=args.penetration, seed=args.seed,
+            fps=args.fps,
+        )  # fmt: skip
+    except ValueError as err:
+        raise UsageError(str(err)) from None
+    print(f"wrote {path}")
+
+
+def add_parsers(sub: argparse._SubParsersAction) -> None:
+    """Add this module's subcommands to `sub`."""
+    p = sub.add_parser("scenario", help="write the SUMO files of a scenario")
+    config_option(p)
+    p.add_argument("--out", type=Path, required=True, help="folder to write into")
+    p.add_argument("--penetration", type=percent, default=None, help="AVs, percent")
+    p.add_argument("--seed", type=non_negative_int, default=None, help="schedule seed")
+    p.add_argument("--force", action="store_true", help="overwrite existing files")
+    p.set_defaults(func=cmd_scenario)
+
+    p = sub.add_parser("sumo", help="run the scenario in SUMO and print its metrics")
+    config_option(p)
+    p.add_argument("--penetration", type=percent, default=None, help="AVs, percent")
+    p.add_argument("--seeds", type=positive_int, default=1, help="number of seeds")
+    sumo_run_options(p)
+    p.set_defaults(func=cmd_sumo)
+
+    p = sub.add_parser("parity", help="JAX against SUMO on the same schedules")
+    config_option(p)
+    p.add_argument("--seeds", type=positive_int, default=3, help="number of seeds")
+    p.add_argument(
+        "--penetration", type=percent, default=0.0,
+        help="AVs, percent (default 0)",
+    )  # fmt: skip
+    p.add_argument(
+        "--controller", default=None, metavar="SPEC",
+        help="who drives the AVs in both simulators: uncontrolled (default, "
+        "their vType), accel:A, cruise:V, eco[:B], timed[:H] or a policy file",
+    )  # fmt: skip
+    sumo_run_options(p)
+    p.set_defaults(func=cmd_parity)
+
+    p = sub.add_parser("bench", help="vehicle-steps per second: JAX batches vs SUMO")
+    config_option(p)
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser("render", help="an episode of the JAX environment as GIF/MP4")
+    config_option(p)
+    p.add_argument("--out", type=Path, required=True, help=".gif or .mp4 to write")
+    p.add_argument("--seconds", type=float, default=120.0, help="simulated seconds")
+    p.add_argument("--every", type=positive_int, default=2, help="steps per frame")
+    p.add_argument("--penetration", type=percent, default=None, help="AVs, percent")
+    p.add_argument("--seed", type=non_negative_int, default=0, help="schedule seed")
+    p.add_argument("--fps", type=float, default=10.0, help="frames per second")
+    p.set_defaults(func=cmd_render)

@@ -1,0 +1,324 @@
+"""Commands around the policy: `run` (the main job), `train`, `evaluate`, `export`."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from jaxround.analysis.report import percent_label
+from jaxround.apps.cli.arguments import (
+    UsageError,
+    config_option,
+    fresh_output_dir,
+    non_negative_int,
+    percent_list,
+    positive_int,
+    print_json,
+    seeds_of,
+    workers_option,
+)
+from jaxround.apps.pipeline import QUICK_TRAIN_STEPS
+from jaxround.scenario.config import ScenarioConfig, load_config
+
+
+def evaluate_in_sumo(
+    args: argparse.Namespace, cfg: ScenarioConfig, seeds: list[int], out: Path
+) -> None:
+    """`jaxround evaluate --sim sumo`: SUMO, with the JAX figures beside."""
+    from jaxround.apps.pipeline import evaluate_everywhere, headline
+
+    say = (lambda msg: None) if args.json else (lambda m: print(m, file=sys.stderr))
+    try:
+        result = evaluate_everywhere(
+            cfg, args.policy, args.penetrations, seeds, out, workers=args.workers,
+            progress=not args.json, say=say,
+        )  # fmt: skip
+    except (OSError, ValueError) as err:
+        raise UsageError(f"--policy {args.policy}: {err}") from None
+    if args.json:
+        print_json({k: v for k, v in result.items() if k != "tables"})
+        return
+    print(result["tables"])
+    print(headline(result))
+    print(f"wrote {out / 'evaluation.json'}, tables and sumo_policy.png in {out}")
+
+
+def cmd_run(args: argparse.Namespace) -> None:
+    from agents.config import load_ppo_config
+    from jaxround.apps.pipeline import TRAIN_DIR, headline, main_job
+
+    cfg = load_config(args.config)
+    train_cfg = load_ppo_config(args.train_config)
+    if args.quick:
+        train_cfg = train_cfg.replace(
+            total_env_steps=min(train_cfg.total_env_steps, QUICK_TRAIN_STEPS)
+        )
+    if args.total_steps is not None:
+        train_cfg = train_cfg.replace(total_env_steps=args.total_steps)
+    out = fresh_output_dir(
+        args.out, args.force, ["results.json", "evaluation.json", TRAIN_DIR]
+    )
+    seeds = seeds_of(cfg, 1 if args.quick else args.seeds)
+    penetrations = [0.0, 0.5, 1.0] if args.quick else [i / 10 for i in range(11)]
+    say = (
+        (lambda msg: None)
+        if args.no_progress
+        else (lambda msg: print(msg, file=sys.stderr))
+    )
+    result = main_job(
+        cfg, out, seeds, penetrations, train_cfg, workers=args.workers,
+        progress=not args.no_progress, say=say,
+    )  # fmt: skip
+    print(result["tables"])
+    print(headline(result))
+    print(
+        f"wrote {out / 'results.json'}, the tables and figures in {out}, the "
+        f"training run in {out / TRAIN_DIR} ({result['wall_time_s']:.0f} s in all)"
+    )
+
+
+def cmd_train(args: argparse.Namespace) -> None:
+    from agents.config import load_trainer_config
+    from agents.training import (
+        ALGORITHMS,
+        RUN_FILES,
+        algorithm_of,
+        clear_run,
+        enable_compilation_cache,
+        load_run_config,
+        train_to_dir,
+    )
+
+    overrides: dict[str, int] = {}
+    if args.seed is not None:
+        overrides["seed"] = args.seed
+    if args.total_steps is not None:
+        overrides["total_env_steps"] = args.total_steps
+    if args.resume is not None:
+        out = args.resume
+        if args.out is not None and args.out.resolve() != out.resolve():
+            raise UsageError(
+                "--out and --resume name different folders; --resume DIR alone "
+                "continues the run in DIR"
+            )
+        saved_file = out / "config.yaml"
+        if not saved_file.is_file():
+            raise UsageError(f"--resume {out}: no config.yaml there, not a run folder")
+        cfg = load_run_config(saved_file)
+        algo = algorithm_of(cfg).name.lower()
+        if args.algo is not None and args.algo != algo:
+            raise UsageError(
+                f"--resume {out}: the run trains with {algo}, not --algo {args.algo}"
+            )
+        wanted = (
+            cfg if args.config is None else load_trainer_config(type(cfg), args.config)
+        )
+        wanted = wanted.replace(**overrides) if overrides else wanted
+        saved, asked = cfg.to_dict(), wanted.to_dict()
+        differ = [
+            f"{k}: {saved[k]} -> {asked[k]}" for k in saved if saved[k] != asked[k]
+        ]
+        if differ:
+            raise UsageError(
+                f"--resume {out}: the run was started with another config "
+                f"({'; '.join(differ)}); start a new run with --out"
+            )
+    else:
+        if args.out is None:
+            raise UsageError("give --out DIR for a new run, or --resume DIR")
+        algo = args.algo or "ppo"
+        cfg = load_trainer_config(ALGORITHMS[algo].config, args.config)
+        cfg = cfg.replace(**overrides) if overrides else cfg
+        out = fresh_output_dir(args.out, args.force, RUN_FILES)
+        clear_run(out)
+        (out / "config.yaml").write_text(cfg.to_yaml())
+    enable_compilation_cache()
+    say = (
+        (lambda msg: None)
+        if args.no_progress
+        else (lambda msg: print(msg, file=sys.stderr))
+    )
+    steps = cfg.env_steps_per_update // cfg.n_envs
+    say(
+        f"{algo.upper()}: {cfg.num_updates} updates of {cfg.n_envs} x {steps} env "
+        f"steps ({cfg.scenario}, {cfg.demand_window_s:g} s of demand), into {out}"
+    )
+    result = train_to_dir(
+        cfg, out, resume=args.resume is not None, progress=not args.no_progress,
+        say=say,
+    )  # fmt: skip
+    rate = result["env_steps_per_s"]
+    last = result["last"]
+    print(
+        f"{result['updates']} updates"
+        + (f", {rate:,.0f} env-steps/s" if rate else "")
+        + (
+            f", last return {last['episode_return']:.3f}, AV crossing time "
+            f"{last['av_crossing_time_s']:.2f} s"
+            if last
+            else ""
+        )
+    )
+    print(f"wrote {out / 'metrics.csv'}, {out / 'learning_curves.png'}")
+    if result["policy"]:
+        print(f"policy: {result['policy']} (+ .json)")
+
+
+def cmd_evaluate(args: argparse.Namespace) -> None:
+    from agents.evaluation import SUMMARY_COLUMNS, evaluate_policy, summary_rows
+    from agents.export import load_policy
+    from agents.training import enable_compilation_cache
+    from jaxround.analysis.report import markdown_table, write_json, write_tables
+
+    try:
+        _, layout = load_policy(args.policy)
+    except (OSError, ValueError) as err:
+        raise UsageError(f"--policy {args.policy}: {err}") from None
+    cfg = load_config(args.config or layout.scenario or None)
+    if args.sim == "sumo" and args.out is None:
+        raise UsageError("--sim sumo writes tables and a figure: give --out DIR")
+    out = (
+        None
+        if args.out is None
+        else fresh_output_dir(args.out, args.force, ["evaluation.json"])
+    )
+    seeds = seeds_of(cfg, args.seeds)
+    enable_compilation_cache()
+    if args.sim == "sumo":
+        evaluate_in_sumo(args, cfg, seeds, out)
+        return
+    try:
+        summary = evaluate_policy(
+            args.policy, cfg, args.penetrations, seeds, max_vehicles=args.max_vehicles
+        )
+    except ValueError as err:
+        raise UsageError(f"--policy {args.policy}: {err}") from None
+    results = summary["results"]
+    by_label = {
+        driver: {percent_label(p): m for p, m in per_p.items()}
+        for driver, per_p in results.items()
+    }
+    report = {**summary, "results": by_label}
+    if out is not None:
+        write_json(report, out / "evaluation.json")
+        write_tables(results["policy"], out, "jax_policy")
+        write_tables(results["uncontrolled"], out, "jax_uncontrolled")
+    if args.json:
+        print_json(report)
+        return
+    print(
+        f"{cfg.name}, seeds {seeds}, JAX; AVs driven by the policy and, as the "
+        "baseline, uncontrolled (their IDM vType)\n"
+    )
+    print(markdown_table(SUMMARY_COLUMNS, summary_rows(results)))
+    if out is not None:
+        print(f"wrote {out / 'evaluation.json'} and tables")
+
+
+def cmd_export(args: argparse.Namespace) -> None:
+    from agents.export import load_policy, policy_paths
+
+    src_npz, src_json = policy_paths(args.run_dir)
+    if not src_npz.is_file():
+        raise UsageError(
+            f"{args.run_dir}: no exported policy there (a finished `jaxround train` "
+            "run writes policy.npz; resume an unfinished one with --resume)"
+        )
+    try:
+        load_policy(src_npz)  # refuse a damaged file before copying it
+    except (OSError, ValueError) as err:
+        raise UsageError(str(err)) from None
+    dst_npz, dst_json = policy_paths(args.out)
+    for dst in (dst_npz, dst_json):
+        if dst.exists() and not args.force:
+            raise UsageError(f"--out {dst}: exists; pass --force to overwrite")
+    dst_npz.parent.mkdir(parents=True, exist_ok=True)
+    dst_npz.write_bytes(src_npz.read_bytes())
+    dst_json.write_text(src_json.read_text())
+    print(f"wrote {dst_npz} and {dst_json}")
+
+
+def add_parsers(sub: argparse._SubParsersAction) -> None:
+    """Add this module's subcommands to `sub`."""
+    p = sub.add_parser(
+        "run", help="the main job: train, export, evaluate in JAX and SUMO, tables"
+    )
+    config_option(p)
+    p.add_argument("--out", type=Path, default=Path("results"), help="output folder")
+    p.add_argument("--seeds", type=positive_int, default=2, help="number of seeds")
+    p.add_argument(
+        "--quick", action="store_true",
+        help=f"1 seed, 3 penetrations, {QUICK_TRAIN_STEPS:,} training steps",
+    )  # fmt: skip
+    p.add_argument(
+        "--train-config", default=None,
+        help="PPO config YAML or built-in name (default: ppo_milan)",
+    )  # fmt: skip
+    p.add_argument(
+        "--total-steps", type=positive_int, default=None,
+        help="training env steps (overrides the PPO config)",
+    )  # fmt: skip
+    workers_option(p)
+    p.add_argument("--force", action="store_true", help="overwrite an earlier run")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("train", help="train the AVs' policy with PPO or APG in JAX")
+    p.add_argument(
+        "--algo", choices=("ppo", "apg"), default=None,
+        help="ppo (default) or apg (analytic policy gradients); --resume "
+        "takes the run's own",
+    )  # fmt: skip
+    p.add_argument(
+        "--config", default=None,
+        help="trainer config YAML or built-in name (default: ppo_milan, apg_milan)",
+    )  # fmt: skip
+    p.add_argument("--out", type=Path, default=None, help="folder of a new run")
+    p.add_argument(
+        "--resume", type=Path, default=None,
+        help="continue the run in this folder from its last checkpoint",
+    )  # fmt: skip
+    p.add_argument("--seed", type=non_negative_int, default=None, help="PRNG seed")
+    p.add_argument(
+        "--total-steps", type=positive_int, default=None,
+        help="env steps over all roundabouts (overrides the config)",
+    )  # fmt: skip
+    p.add_argument("--force", action="store_true", help="overwrite an earlier run")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser(
+        "evaluate", help="a trained policy over penetrations, against uncontrolled AVs"
+    )
+    p.add_argument(
+        "--config", default=None,
+        help="scenario YAML or built-in name (default: the policy's scenario)",
+    )  # fmt: skip
+    p.add_argument(
+        "--policy", type=Path, required=True,
+        help="policy.npz / policy.json, or a training folder",
+    )  # fmt: skip
+    p.add_argument(
+        "--sim", choices=("jax", "sumo"), default="jax",
+        help="jax (default), or sumo: SUMO through libsumo, JAX figures beside",
+    )  # fmt: skip
+    workers_option(p)
+    p.add_argument(
+        "--penetrations", type=percent_list, default=percent_list("0,10,...,100"),
+        help="AV shares in percent, e.g. 0,10,...,100 (the default) or 0,50,100",
+    )  # fmt: skip
+    p.add_argument("--seeds", type=positive_int, default=1, help="number of seeds")
+    p.add_argument(
+        "--max-vehicles", type=positive_int, default=32, help="vehicle slots M"
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--out", type=Path, default=None, help="also write files here")
+    p.add_argument("--force", action="store_true", help="overwrite evaluation.json")
+    p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("export", help="copy a training run's policy (npz + json)")
+    p.add_argument("run_dir", type=Path, help="a `jaxround train` folder")
+    p.add_argument("--out", type=Path, required=True, help="policy.npz to write")
+    p.add_argument("--force", action="store_true", help="overwrite existing files")
+    p.set_defaults(func=cmd_export)

@@ -1,0 +1,226 @@
+"""The whole study in one call: train, export, evaluate in JAX and in SUMO.
+
+`jaxround run` is `main_job`; `jaxround evaluate --sim sumo` is
+`evaluate_everywhere`. Both write their files into one folder and return the
+JSON they wrote (``results.json`` / ``evaluation.json``).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from jaxround.analysis.report import percent_label, write_json, write_tables
+from jaxround.scenario.config import ScenarioConfig
+
+#: Training folder inside the main job's output folder.
+TRAIN_DIR = "train"
+#: Env steps of the main job's training with --quick.
+QUICK_TRAIN_STEPS = 262_144
+
+
+def by_label(per_penetration: dict[float, Any]) -> dict[str, Any]:
+    """``{0.1: x}`` -> ``{"10": x}``: penetrations as the paper's percent labels."""
+    return {percent_label(p): m for p, m in per_penetration.items()}
+
+
+#: What the policy does differently, drawn into the evaluation folder.
+BEHAVIOUR_PNG = "behaviour.png"
+#: Penetrations at which the policy is compared with uncontrolled AVs.
+COMPARED_PENETRATIONS = (0.5, 1.0)
+
+
+def evaluate_everywhere(
+    cfg: ScenarioConfig,
+    policy: str | Path,
+    penetrations: Sequence[float],
+    seeds: Sequence[int],
+    out: Path,
+    workers: int | None = None,
+    progress: bool = True,
+    say: Callable[[str], None] = print,
+    step: str = "",
+) -> dict[str, Any]:
+    """A policy over penetrations, beside uncontrolled AVs of the same vType,
+    in JAX and in SUMO, on the same schedules; tables, figure and JSON into
+    `out`.
+
+    Returns:
+        ``{"scenario", "seeds", "policy", "sumo": {label: M},
+        "sumo_uncontrolled": {label: M}, "jax": {label: M},
+        "jax_uncontrolled": {label: M}, "comparison": {...}, "tables"}`` with
+        M as `jaxround.analysis.metrics.class_metrics` (means over seeds) plus the
+        safety counters, and "comparison" as `compare_with_uncontrolled`;
+        also written to ``out/evaluation.json``.
+    """
+    from agents.evaluation import evaluate_policy
+    from sumo_export.evaluate import policy_controller, summarise_runs, sumo_runs
+    from sumo_export.policy_report import write_policy_report
+
+    n = f"{len(penetrations)} penetrations x {len(seeds)} seed(s)"
+    factory = policy_controller(cfg, policy)  # a bad policy fails before any run
+    say(f"{step}JAX: policy and uncontrolled AVs, {n}")
+    jax_eval = evaluate_policy(policy, cfg, penetrations, seeds, keep_records=True)
+    jax_policy = jax_eval["results"]["policy"]
+    write_tables(jax_policy, out, "jax_policy")
+    write_tables(jax_eval["results"]["uncontrolled"], out, "jax_uncontrolled")
+    say(f"{step}SUMO: the policy through libsumo, then uncontrolled AVs, {n}")
+    runs = {
+        "policy": sumo_runs(cfg, penetrations, seeds, workers, progress, factory,
+                            desc="SUMO, policy"),
+        "uncontrolled": sumo_runs(cfg, penetrations, seeds, workers, progress,
+                                  desc="SUMO, uncontrolled AVs"),
+    }  # fmt: skip
+    sweep = {p: summarise_runs(cfg, r) for p, r in runs["policy"].items()}
+    plain = {p: summarise_runs(cfg, r) for p, r in runs["uncontrolled"].items()}
+    write_tables({p: r["mean"] for p, r in plain.items()}, out, "sumo_uncontrolled")
+    tables = write_policy_report(cfg, sweep, out, policy, jax_results=jax_policy)
+    sumo_records = {
+        d: {p: [r.records for r in rs] for p, rs in by_p.items()}
+        for d, by_p in runs.items()
+    }
+    result = {
+        "scenario": cfg.name,
+        "seeds": list(seeds),
+        "policy": str(policy),
+        "sumo": by_label({p: r["mean"] for p, r in sweep.items()}),
+        "sumo_uncontrolled": by_label({p: r["mean"] for p, r in plain.items()}),
+        "jax": by_label(jax_policy),
+        "jax_uncontrolled": by_label(jax_eval["results"]["uncontrolled"]),
+        "comparison": compare_with_uncontrolled(
+            {"sumo": sumo_records, "jax": jax_eval["records"]}
+        ),
+        "tables": tables,
+    }
+    from agents.behaviour import plot_behaviour, policy_behaviour
+
+    behaviour = policy_behaviour(policy, cfg, penetration=1.0, seed=seeds[0])
+    plot_behaviour(
+        behaviour, out / BEHAVIOUR_PNG,
+        f"{cfg.name}, 100% AVs, seed {seeds[0]}: the policy's AVs and uncontrolled AVs",
+    )  # fmt: skip
+    write_json(result, out / "evaluation.json")
+    return result
+
+
+def compare_with_uncontrolled(
+    records: dict[str, dict[str, dict[float, list[Any]]]],
+) -> dict[str, Any]:
+    """Policy against uncontrolled AVs, paired on the same schedules.
+
+    Args:
+        records: ``{sim: {"policy" | "uncontrolled": {penetration: [records
+            per seed]}}}``.
+
+    Returns:
+        ``{sim: {label: {"all" | "hv" | "av": compare.paired_difference}},
+        "sumo_to_jax_gain": {label: ratio}}`` at `COMPARED_PENETRATIONS`; the
+        ratio is the SUMO difference in mean crossing time of all vehicles
+        over the JAX one (None where JAX shows none).
+    """
+    from jaxround.analysis.compare import paired_difference
+
+    out: dict[str, Any] = {}
+    for sim, by_driver in records.items():
+        out[sim] = {}
+        for p in COMPARED_PENETRATIONS:
+            if p not in by_driver["policy"]:
+                continue
+            pol, base = by_driver["policy"][p], by_driver["uncontrolled"][p]
+            out[sim][percent_label(p)] = {
+                c: paired_difference(pol, base, c) for c in ("all", "hv", "av")
+            }
+    ratios = {}
+    for label, by_class in out.get("sumo", {}).items():
+        sumo_t = by_class["all"]["crossing_time_s"]
+        jax_t = out.get("jax", {}).get(label, {}).get("all", {}).get("crossing_time_s")
+        ok = sumo_t and jax_t and abs(jax_t["diff"]) > 1e-9
+        ratios[label] = sumo_t["diff"] / jax_t["diff"] if ok else None
+    out["sumo_to_jax_gain"] = ratios
+    return out
+
+
+def main_job(
+    cfg: ScenarioConfig,
+    out: Path,
+    seeds: Sequence[int],
+    penetrations: Sequence[float],
+    train_config: Any,
+    workers: int | None = None,
+    progress: bool = True,
+    say: Callable[[str], None] = print,
+) -> dict[str, Any]:
+    """Scenario files, PPO training, export, evaluation in JAX and SUMO.
+
+    Args:
+        cfg: the scenario evaluated (full demand).
+        out: a fresh output folder.
+        seeds: schedule seeds of the evaluation.
+        penetrations: AV shares of the evaluation.
+        train_config: the `agents.config.PPOConfig` to train.
+
+    Returns:
+        The ``results.json`` object: ``{"sumo": {label: M}, "jax": {label:
+        M}, ...}`` (`evaluate_everywhere`) plus the training summary.
+    """
+    from agents.training import clear_run, enable_compilation_cache, train_to_dir
+    from jaxround.scenario.schedule import make_schedule
+    from sumo_export.scenario import write_scenario
+
+    started = time.time()
+    write_scenario(cfg, make_schedule(cfg), out / "scenario")
+    say(f"[1/4] scenario files in {out / 'scenario'}")
+    train_dir = out / TRAIN_DIR
+    train_dir.mkdir(parents=True, exist_ok=True)
+    clear_run(train_dir)
+    (train_dir / "config.yaml").write_text(train_config.to_yaml())
+    say(
+        f"[2/4] PPO: {train_config.num_updates} updates of "
+        f"{train_config.n_envs} x {train_config.n_steps} env steps into {train_dir}"
+    )
+    enable_compilation_cache()
+    trained = train_to_dir(train_config, train_dir, progress=progress, say=say)
+    policy = Path(trained["policy"])
+    result = evaluate_everywhere(
+        cfg, policy, penetrations, seeds, out, workers, progress, say, "[3-4/4] "
+    )
+    result["training"] = {
+        "updates": trained["updates"],
+        "env_steps": trained["updates"] * train_config.env_steps_per_update,
+        "env_steps_per_s": trained["env_steps_per_s"],
+        "last": trained["last"],
+    }
+    result["wall_time_s"] = round(time.time() - started, 1)
+    write_json(result, out / "results.json")
+    return result
+
+
+def headline(result: dict[str, Any]) -> str:
+    """Crossing times at 0%, 50% and 100% AVs in both simulators, and the
+    policy against uncontrolled AVs, in words."""
+    lines = []
+    for sim in ("sumo", "sumo_uncontrolled", "jax", "jax_uncontrolled"):
+        runs = result.get(sim, {})
+        parts = []
+        for label, cls in (("0", "hv"), ("50", "hv"), ("50", "av"), ("100", "av")):
+            m = runs.get(label, {}).get(cls, {})
+            t = m.get("mean_crossing_time_s")
+            if t is not None:
+                parts.append(f"{cls.upper()}s at {label}%: {t:.2f} s")
+        if parts:
+            lines.append(f"{sim}: " + ", ".join(parts))
+    for sim, by_label in result.get("comparison", {}).items():
+        if sim == "sumo_to_jax_gain":
+            continue
+        for label, by_class in by_label.items():
+            t, c = by_class["all"]["crossing_time_s"], by_class["all"]["co2_g"]
+            if t is None or c is None:
+                continue
+            lines.append(
+                f"{sim}, {label}% AVs, policy minus uncontrolled: crossing time "
+                f"{t['diff']:+.2f} s ({100 * t['rel_diff']:+.1f}%), CO2 "
+                f"{c['diff']:+.2f} g/veh ({100 * c['rel_diff']:+.1f}%)"
+            )
+    return "\n".join(lines)

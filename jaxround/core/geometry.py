@@ -1,0 +1,209 @@
+"""Where vehicles are: the compiled network as device arrays, and who leads whom.
+
+Shapes: M vehicle slots, R routes, L lanes, K lanes per route, G legs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxround.core.network import CompiledNetwork
+from jaxround.core.reductions import first_min
+
+#: Far away (m).
+FAR = 1e6
+
+
+@dataclass(frozen=True)
+class NetArrays:
+    """`CompiledNetwork` as device arrays (static for a jitted step)."""
+
+    lane_length: jax.Array  # (L,)
+    lane_speed: jax.Array  # (L,)
+    lane_next: jax.Array  # (L,)
+    lane_sibling: jax.Array  # (L,)
+    lane_diverge: jax.Array  # (L,)
+    lane_partner: jax.Array  # (L,)
+    lane_converge: jax.Array  # (L,)
+    route_lanes: jax.Array  # (R, K)
+    route_lane_start: jax.Array  # (R, K), +inf padded
+    route_length: jax.Array  # (R,)
+    route_origin: jax.Array  # (R,)
+    lane_offset: jax.Array  # (R, L), nan where off-route
+    yield_offset: jax.Array  # (R,)
+    conflict_offset: jax.Array  # (R, G), nan where the route does not pass
+    through_length: jax.Array  # (G,)
+    entry_internal_length: jax.Array  # (G,)
+    entry_visibility: jax.Array  # (G,)
+    entry_lane: jax.Array  # (G,)
+    through_lane: jax.Array  # (G,) the ring's through lane at each entry
+    lane_internal: jax.Array  # (L,) bool
+    normal_cum: jax.Array  # (R, K) metres of normal lanes before lane k
+    internal_cum: jax.Array  # (R, K) metres of internal lanes before lane k
+    conflict_index: jax.Array  # (R, G) route index k of the through lane at leg g
+    merge_index: jax.Array  # (R, K) first merging internal lane at or after k, -1
+    merge_positions: tuple[int, ...]  # route indices k where some route merges
+    prev_lane_length: jax.Array  # (R, G) length of the lane before it
+    normal_before: jax.Array  # (R, G) normal metres up to the link before it
+    internal_before: jax.Array  # (R, G) internal metres up to the link before it
+
+    @classmethod
+    def from_network(cls, net: CompiledNetwork) -> NetArrays:
+        f = jnp.float32
+        start = np.where(np.isnan(net.route_lane_start), np.inf, net.route_lane_start)
+        internal = np.array([lid.startswith(":") for lid in net.lane_ids])
+        r_n, k_n = net.route_lanes.shape
+        lanes = np.maximum(net.route_lanes, 0)
+        seg = np.where(net.route_lanes >= 0, net.lane_length[lanes], 0.0)  # (R, K)
+        is_int = internal[lanes] & (net.route_lanes >= 0)
+        normal_cum = np.concatenate(
+            [np.zeros((r_n, 1)), np.cumsum(np.where(is_int, 0.0, seg), 1)[:, :-1]], 1
+        )
+        internal_cum = np.concatenate(
+            [np.zeros((r_n, 1)), np.cumsum(np.where(is_int, seg, 0.0), 1)[:, :-1]], 1
+        )
+        g_n = net.n_legs
+        conflict_index = np.zeros((r_n, g_n), np.int32)
+        for r in range(r_n):
+            for g in range(g_n):
+                hit = np.nonzero(net.route_lanes[r] == net.ring_through[g])[0]
+                conflict_index[r, g] = hit[0] if hit.size else 2
+        rows = np.arange(r_n)[:, None]
+        prev_lane = net.route_lanes[rows, conflict_index - 1]
+        merges = (net.route_lanes >= 0) & (net.lane_partner[lanes] >= 0)
+        merge_index = -np.ones((r_n, k_n), np.int32)
+        for r in range(r_n):
+            nxt = -1
+            for k in range(k_n - 1, -1, -1):
+                if merges[r, k]:
+                    nxt = k
+                merge_index[r, k] = nxt
+        return cls(
+            lane_length=jnp.asarray(net.lane_length, f),
+            lane_speed=jnp.asarray(net.lane_speed, f),
+            lane_next=jnp.asarray(net.lane_next),
+            lane_sibling=jnp.asarray(net.lane_sibling),
+            lane_diverge=jnp.asarray(net.lane_diverge, f),
+            lane_partner=jnp.asarray(net.lane_partner),
+            lane_converge=jnp.asarray(net.lane_converge, f),
+            route_lanes=jnp.asarray(net.route_lanes),
+            route_lane_start=jnp.asarray(start, f),
+            route_length=jnp.asarray(net.route_length, f),
+            route_origin=jnp.asarray(net.route_od[:, 0]),
+            lane_offset=jnp.asarray(net.lane_offset, f),
+            yield_offset=jnp.asarray(net.yield_offset, f),
+            conflict_offset=jnp.asarray(net.conflict_offset, f),
+            through_length=jnp.asarray(net.lane_length[net.ring_through], f),
+            entry_internal_length=jnp.asarray(net.lane_length[net.entry_internal], f),
+            entry_visibility=jnp.asarray(net.entry_visibility, f),
+            entry_lane=jnp.asarray(net.entry_lane),
+            through_lane=jnp.asarray(net.ring_through),
+            lane_internal=jnp.asarray(internal),
+            normal_cum=jnp.asarray(normal_cum, f),
+            internal_cum=jnp.asarray(internal_cum, f),
+            conflict_index=jnp.asarray(conflict_index),
+            merge_index=jnp.asarray(merge_index),
+            merge_positions=tuple(int(k) for k in np.nonzero(merges.any(axis=0))[0]),
+            prev_lane_length=jnp.asarray(net.lane_length[prev_lane], f),
+            normal_before=jnp.asarray(normal_cum[rows, conflict_index - 1], f),
+            internal_before=jnp.asarray(internal_cum[rows, conflict_index - 1], f),
+        )
+
+
+def locate(net: NetArrays, route: jax.Array, pos: jax.Array) -> tuple[jax.Array, ...]:
+    """Lane of each vehicle from its route position.
+
+    Args:
+        route: int (M,); pos: float (M,) front position along the route.
+
+    Returns:
+        (k, lane, pos_on_lane): int (M,) index in the route, int (M,) lane,
+        float (M,) position on that lane.
+    """
+    starts = net.route_lane_start[route]  # (M, K)
+    k = jnp.clip(jnp.sum(starts <= pos[:, None], axis=1) - 1, 0, starts.shape[1] - 1)
+    lane = jnp.take_along_axis(net.route_lanes[route], k[:, None], axis=1)[:, 0]
+    pos_on_lane = pos - jnp.take_along_axis(starts, k[:, None], axis=1)[:, 0]
+    return k, lane, pos_on_lane
+
+
+def project(
+    net: NetArrays, route: jax.Array, lane: jax.Array, pos_on_lane: jax.Array
+) -> jax.Array:
+    """Position of every vehicle j along the route of every vehicle i.
+
+    A vehicle on a lane of i's route is at that lane's offset plus its lane
+    position. A vehicle on the sibling of a lane of i's route (exit vs
+    through) that has not yet diverged from it (lanes within 2.5 m, SUMO's
+    divergence point) is placed on that lane. Others are nan: vehicles
+    merging in from another lane are link leaders (`link_leaders.link_leader`).
+
+    Returns:
+        float (M_i, M_j).
+    """
+    lane_offset = net.lane_offset[route]  # (M_i, L)
+    direct = lane_offset[:, lane] + pos_on_lane[None, :]  # (M, M)
+    sib = net.lane_sibling[lane]  # (M,)
+    sib_offset = lane_offset[:, jnp.maximum(sib, 0)]  # (M, M)
+    not_apart = (sib >= 0) & (pos_on_lane < net.lane_diverge[lane])
+    via_sibling = jnp.where(
+        not_apart[None, :], sib_offset + pos_on_lane[None, :], jnp.nan
+    )
+    return jnp.where(jnp.isnan(direct), via_sibling, direct)
+
+
+def back_projection(
+    net: NetArrays, route: jax.Array, pos: jax.Array, length: jax.Array
+) -> jax.Array:
+    """Where each vehicle's back lies along each vehicle's route, (M_i, M_j).
+
+    SUMO follows a leader as long as any part of it occupies a lane ahead on
+    the follower's route: a vehicle turning off still leads until its back
+    has left the shared lane.
+    """
+    _, lane, pos_on_lane = locate(net, route, jnp.maximum(pos - length, 0.0))
+    return project(net, route, lane, pos_on_lane)
+
+
+def leaders(
+    proj: jax.Array, pos: jax.Array, active: jax.Array, length: jax.Array
+) -> tuple[jax.Array, jax.Array]:
+    """Nearest vehicle ahead along each vehicle's route (masked argmin).
+
+    Args:
+        proj: (M, M) from `project`; pos: (M,); active: bool (M,).
+        length: vehicle length (scalar).
+
+    Returns:
+        (leader, gap): int (M,) slot of the leader (-1 for none) and float (M,)
+        bumper-to-bumper gap (FAR for none).
+    """
+    m = pos.shape[0]
+    ahead = proj - pos[:, None]  # (M, M)
+    eye = jnp.eye(m, dtype=bool)
+    # equal positions: the lower slot counts as ahead, so two never both lead
+    slot_order = jnp.arange(m)[None, :] < jnp.arange(m)[:, None]
+    # (nan, off the route, is neither > 0 nor == 0)
+    ok = active[None, :] & ~eye & ((ahead > 0) | ((ahead == 0) & slot_order))
+    nearest, leader = first_min(jnp.where(ok, ahead, jnp.inf), axis=1)
+    has = jnp.isfinite(nearest) & active
+    gap = jnp.where(has, nearest - length, FAR)
+    return jnp.where(has, leader, -1), gap
+
+
+def normal_done(net: NetArrays, route: jax.Array, pos: jax.Array) -> jax.Array:
+    """Metres of normal (non-internal) lanes driven so far along the route, (M,)."""
+    k, lane, pos_on_lane = locate(net, route, pos)
+    before = jnp.take_along_axis(net.normal_cum[route], k[:, None], axis=1)[:, 0]
+    return before + jnp.where(net.lane_internal[lane], 0.0, pos_on_lane)
+
+
+def internal_done(net: NetArrays, route: jax.Array, pos: jax.Array) -> jax.Array:
+    """Metres of internal lanes driven so far along the route, (M,)."""
+    k, lane, pos_on_lane = locate(net, route, pos)
+    before = jnp.take_along_axis(net.internal_cum[route], k[:, None], axis=1)[:, 0]
+    return before + jnp.where(net.lane_internal[lane], pos_on_lane, 0.0)

@@ -1,0 +1,102 @@
+"""A compiled roundabout network: the static arrays the JAX step reads.
+
+Built from the `.net.xml` SUMO runs by `jaxround.sumo_files.compile`, so the
+JAX environment never holds a second, hand-written geometry.
+
+Each route (origin leg, exit leg) is a sequence of lanes, SUMO's internal
+junction lanes included. A vehicle's state is its route and its position along
+that route (front bumper, metres from the start of the route's first lane).
+To find leaders across routes, every lane has an offset along every route
+that drives it (nan where it does not); a vehicle on an internal lane that
+merges into a route's next lane is projected onto that route through the merge.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from jaxround.scenario.edges import ring_edge
+
+
+class NetworkError(ValueError):
+    """The network is not a single-lane, single-ring roundabout jaxround can drive."""
+
+
+@dataclass(frozen=True)
+class CompiledNetwork:
+    """Static arrays of a roundabout. R routes, L lanes, K max lanes per route.
+
+    Attributes:
+        n_legs: number of legs.
+        lane_ids: the SUMO lane ids, length L.
+        lane_length: float (L,) metres.
+        lane_speed: float (L,) speed limit, m/s.
+        lane_next: int (L,) the single successor of an internal lane, -1 else.
+        lane_sibling: int (L,) the other internal lane leaving the same lane
+            (exit vs through), -1 if none.
+        lane_diverge: float (L,) distance along an internal lane after which it
+            lies more than 2.5 m from its sibling (SUMO's divergence point).
+        lane_partner: int (L,) the other internal lane merging into the same
+            lane (entry vs through), -1 if none.
+        lane_converge: float (L,) length of an internal lane's end within 2.5 m
+            of its merge partner (SUMO's length behind the crossing).
+        lane_shapes: list of (n_i, 2) arrays, lane centre lines for drawing.
+        route_od: int (R, 2) origin and exit leg of each route.
+        route_index: int (n_legs, n_legs) route of (origin, exit), -1 on the diagonal.
+        route_lanes: int (R, K) lane sequence, padded with -1.
+        route_lane_start: float (R, K) position where each lane starts, nan padded.
+        route_length: float (R,) total length.
+        lane_offset: float (R, L) where lane l starts along route r, nan if not on r.
+        entry_lane: int (n_legs,) the approach lane ``in_{i}_0``.
+        entry_internal: int (n_legs,) internal lane from the approach onto the ring.
+        ring_through: int (n_legs,) internal lane of the circulating (priority)
+            link that the entry at leg i yields to.
+        yield_offset: float (R,) where the route's yield line (end of its entry
+            lane) lies along the route.
+        conflict_offset: float (R, n_legs) where the route enters the ring
+            through-link of leg i (start of ``ring_through[i]``), nan if it
+            does not pass that link.
+        entry_visibility: float (n_legs,) foe visibility distance of each entry (m).
+    """
+
+    n_legs: int
+    lane_ids: tuple[str, ...]
+    lane_length: np.ndarray
+    lane_speed: np.ndarray
+    lane_next: np.ndarray
+    lane_sibling: np.ndarray
+    lane_diverge: np.ndarray
+    lane_partner: np.ndarray
+    lane_converge: np.ndarray
+    lane_shapes: tuple[np.ndarray, ...]
+    route_od: np.ndarray
+    route_index: np.ndarray
+    route_lanes: np.ndarray
+    route_lane_start: np.ndarray
+    route_length: np.ndarray
+    lane_offset: np.ndarray
+    entry_lane: np.ndarray
+    entry_internal: np.ndarray
+    ring_through: np.ndarray
+    yield_offset: np.ndarray
+    conflict_offset: np.ndarray
+    entry_visibility: np.ndarray
+
+    @property
+    def n_routes(self) -> int:
+        return int(self.route_od.shape[0])
+
+    @property
+    def n_lanes(self) -> int:
+        return len(self.lane_ids)
+
+    @property
+    def ring_length(self) -> float:
+        """Length of one lap of the ring (ring edges and through lanes)."""
+        ids = {lid: k for k, lid in enumerate(self.lane_ids)}
+        ring = [ids[f"{ring_edge(i)}_0"] for i in range(self.n_legs)]
+        return float(
+            self.lane_length[ring].sum() + self.lane_length[self.ring_through].sum()
+        )

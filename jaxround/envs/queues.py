@@ -1,0 +1,43 @@
+"""Queue statistics of an episode: vehicles queued on each approach, as SUMO's
+``getLastStepHaltingNumber`` plus those waiting to be inserted."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from jaxround.core import dynamics, geometry
+from jaxround.core.geometry import NetArrays
+from jaxround.core.relax import soft_step
+from jaxround.core.state import EnvParams, EnvState
+
+
+def queued_per_leg(
+    net: NetArrays, state: EnvState, t: jax.Array, temperature: jax.Array
+) -> jax.Array:
+    """Vehicles queued on each approach at time `t`, float (G,): halting there
+    (speed below `dynamics.HALTING_SPEED`, as SUMO's getLastStepHaltingNumber)
+    plus those due that wait to be inserted. Above temperature 0 (m/s) the
+    halting test is smooth (`jaxround.core.relax`); insertion stays exact."""
+    s = state.schedule
+    n_legs = net.entry_lane.shape[0]
+    _, lane, _ = geometry.locate(net, state.route, state.pos)
+    on_entry = lane[None, :] == net.entry_lane[:, None]  # (G, M)
+    slow = soft_step(dynamics.HALTING_SPEED - state.speed, temperature)
+    halting = state.active * slow
+    pending = ~state.inserted & (s.depart_s <= t + 1e-4)
+    waiting = pending[None, :] & (s.origin[None, :] == jnp.arange(n_legs)[:, None])
+    return jnp.sum(on_entry * halting[None, :], axis=1) + jnp.sum(waiting, axis=1)
+
+
+def count_queues(
+    net: NetArrays, state: EnvState, params: EnvParams, t: jax.Array
+) -> EnvState:
+    """Queued vehicles per leg: halting on the approach plus waiting to enter."""
+    q = queued_per_leg(net, state, t, jnp.float32(0.0))
+    within = t <= params.duration_s + 1e-4
+    return state.replace(
+        queue_sum=state.queue_sum + jnp.where(within, q, 0.0),
+        queue_max=jnp.where(within, jnp.maximum(state.queue_max, q), state.queue_max),
+        queue_samples=state.queue_samples + within.astype(jnp.int32),
+    )

@@ -1,0 +1,131 @@
+"""Whole episodes by `lax.scan`, and their per-vehicle records for the metrics."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxround.core.state import EnvParams, EnvState, Schedule
+from jaxround.envs.roundabout import RoundaboutEnv
+from jaxround.scenario.records import VehicleRecords
+
+#: policy(obs, state, key) -> action (M, 2)
+Policy = Callable[[jax.Array, EnvState, jax.Array], jax.Array]
+
+
+#: The action of an AV without a command: it drives its own vType.
+NO_COMMAND = float("nan")
+
+
+def uncontrolled_policy(env: RoundaboutEnv) -> Policy:
+    """AVs drive their own vType (IDM) as SUMO does without a controller:
+    no speed command (NaN, `jaxround.envs.actions.command_from_action`). Human
+    drivers ignore the action."""
+
+    def act(obs: jax.Array, state: EnvState, key: jax.Array) -> jax.Array:
+        del obs, state, key
+        accel = jnp.full((env.max_vehicles, 1), NO_COMMAND, jnp.float32)
+        return jnp.concatenate([accel, jnp.zeros_like(accel)], axis=1)
+
+    return act
+
+
+def run_episode(
+    env: RoundaboutEnv,
+    params: EnvParams,
+    schedule: Schedule,
+    key: jax.Array,
+    policy: Policy | None = None,
+    n_steps: int | None = None,
+) -> EnvState:
+    """Run one episode from `schedule` without auto-reset; return the final state.
+
+    Without a `policy`, AVs drive uncontrolled (`uncontrolled_policy`).
+
+    Pure and jit-able (jit with `env`, `policy` and `n_steps` static, e.g. via
+    `make_episode_runner`); vmap over `schedule`, `params` or `key` for batches.
+    """
+    policy = uncontrolled_policy(env) if policy is None else policy
+    n_steps = env.episode_steps if n_steps is None else n_steps
+    obs, state = env.reset_to_schedule(schedule, params)
+
+    def body(carry, step_key):
+        obs, state = carry
+        k_act, k_env = jax.random.split(step_key)
+        action = policy(obs, state, k_act)
+        obs, state, _, _, _ = env.step_env(k_env, state, action, params)
+        return (obs, state), None
+
+    (_, state), _ = jax.lax.scan(body, (obs, state), jax.random.split(key, n_steps))
+    return state
+
+
+def run_until_left(
+    env: RoundaboutEnv,
+    params: EnvParams,
+    schedule: Schedule,
+    key: jax.Array,
+    policy: Policy | None = None,
+    max_steps: int | None = None,
+) -> EnvState:
+    """Run from `schedule` until every scheduled vehicle has left, or
+    `max_steps` (default: the episode length), whichever comes first.
+
+    As `run_episode`, but a `lax.while_loop` that stops early, so parity and
+    evaluation can compare the same vehicles with a simulator that also runs
+    until the last one leaves. Under `vmap` the batch runs until its last
+    member is done. ``state.step`` tells where it stopped.
+    """
+    policy = uncontrolled_policy(env) if policy is None else policy
+    max_steps = env.episode_steps if max_steps is None else max_steps
+    obs, state = env.reset_to_schedule(schedule, params)
+
+    def running(carry: tuple) -> jax.Array:
+        _, state, _ = carry
+        left = jnp.all(~jnp.isnan(state.arrival_s))
+        return (state.step < max_steps) & ~left
+
+    def body(carry: tuple) -> tuple:
+        obs, state, key = carry
+        key, k_act, k_env = jax.random.split(key, 3)
+        action = policy(obs, state, k_act)
+        obs, state, _, _, _ = env.step_env(k_env, state, action, params)
+        return obs, state, key
+
+    _, state, _ = jax.lax.while_loop(running, body, (obs, state, key))
+    return state
+
+
+def make_episode_runner(
+    env: RoundaboutEnv, policy: Policy | None = None, n_steps: int | None = None
+) -> Callable[[EnvParams, Schedule, jax.Array], EnvState]:
+    """A jitted `run_episode(params, schedule, key)` for this environment."""
+
+    def run(params: EnvParams, schedule: Schedule, key: jax.Array) -> EnvState:
+        return run_episode(env, params, schedule, key, policy, n_steps)
+
+    return jax.jit(run)
+
+
+def vehicle_records(env: RoundaboutEnv, state: EnvState) -> VehicleRecords:
+    """The metrics' `VehicleRecords` of a finished (unbatched) episode."""
+    s = jax.device_get(state)
+    samples = max(int(s.queue_samples), 1)
+    nan = np.isnan
+    co2 = np.asarray(s.trip_co2_mg, np.float64) / 1000.0
+    fuel = np.asarray(s.trip_fuel_mg, np.float64) / 1000.0
+    arrival = np.asarray(s.arrival_s, np.float64)
+    return VehicleRecords(
+        is_av=np.asarray(s.schedule.is_av, bool),
+        origin=np.asarray(s.schedule.origin),
+        scheduled_depart_s=np.asarray(s.schedule.depart_s, np.float64),
+        depart_s=np.asarray(s.insert_s, np.float64),
+        arrival_s=arrival,
+        co2_g=np.where(nan(arrival), np.nan, co2),
+        fuel_g=np.where(nan(arrival), np.nan, fuel),
+        queue_mean_veh=np.asarray(s.queue_sum, np.float64) / samples,
+        queue_max_veh=np.asarray(s.queue_max, np.float64),
+    )

@@ -1,0 +1,350 @@
+"""The roundabout as a gymnax-style JAX environment.
+
+    env, params = jaxround.make("milan")
+    obs, state = env.reset(key, params)
+    obs, state, reward, done, info = env.step(key, state, action, params)
+
+`reset` and `step` are pure and jit-able; batch them with
+``jax.vmap(env.step, in_axes=(0, 0, 0, None))``. `step` resets by itself when
+an episode ends. `reset_to_schedule` starts from a given departure schedule
+(the one SUMO runs), for parity checks and evaluation.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxround.core import dynamics, emissions, geometry, idm
+from jaxround.core.network import CompiledNetwork
+from jaxround.core.state import EnvParams, EnvState, Registrations, Schedule
+from jaxround.envs import departures, observe, queues, schedules
+from jaxround.envs.actions import command_from_action
+from jaxround.envs.assertiveness import retuned_params
+from jaxround.envs.reward import av_reward, system_reward
+from jaxround.scenario.config import ConfigError, ScenarioConfig, load_config
+from jaxround.scenario.schedule import Schedule as NumpySchedule
+from jaxround.sumo_files.compile import compile_network
+from jaxround.sumo_files.netconvert import network_file
+
+#: Extra seconds after the demand horizon for the last vehicles to leave.
+DEFAULT_DRAIN_S = 300.0
+#: Driver numbers the JAX environment shares between AVs and human drivers.
+SHARED_DRIVER_FIELDS = (
+    "car_follow_model", "decel", "emergency_decel", "min_gap", "delta", "length",
+    "max_speed",
+)  # fmt: skip
+
+
+class RoundaboutEnv:
+    """A single-lane roundabout with M vehicle slots and N scheduled vehicles.
+
+    Static settings (shapes, dt, the network) live here; traced numbers in
+    `EnvParams`; everything that changes in `EnvState`.
+    """
+
+    def __init__(
+        self,
+        cfg: ScenarioConfig,
+        network: CompiledNetwork,
+        max_vehicles: int = 32,
+        episode_s: float | None = None,
+    ) -> None:
+        if network.n_legs != cfg.n_legs:
+            raise ValueError(
+                f"network has {network.n_legs} legs, config {cfg.name!r} "
+                f"has {cfg.n_legs}"
+            )
+        if max_vehicles < 1:
+            raise ValueError(f"max_vehicles: {max_vehicles}, expected >= 1")
+        check_driver_classes(cfg)
+        self.cfg = cfg
+        self.network = network
+        self.net = geometry.NetArrays.from_network(network)
+        self.max_vehicles = int(max_vehicles)
+        self.n_schedule = cfg.demand.n_vehicles
+        self.dt = cfg.simulation.dt_s
+        self.n_substeps = idm.idm_substeps(self.dt)
+        hv = cfg.drivers.hv
+        self.action_step = (
+            max(1, math.floor(hv.action_step_length / self.dt + 1e-9)) * self.dt
+        )
+        self.episode_s = (
+            cfg.demand.duration_s + DEFAULT_DRAIN_S if episode_s is None else episode_s
+        )
+        self.episode_steps = int(math.ceil(self.episode_s / self.dt))
+        self.observer = cfg.agent.observer
+        dest = np.zeros(network.route_index.max() + 1, np.int32)
+        for o in range(network.n_legs):
+            for d in range(network.n_legs):
+                if network.route_index[o, d] >= 0:
+                    dest[network.route_index[o, d]] = d
+        self.route_destination = jnp.asarray(dest)
+
+    # ------------------------------------------------------------------ params
+
+    @property
+    def default_params(self) -> EnvParams:
+        return EnvParams.from_config(self.cfg)
+
+    @property
+    def n_legs(self) -> int:
+        return self.network.n_legs
+
+    @property
+    def obs_size(self) -> int:
+        """Numbers per slot of the configured observer."""
+        return observe.OBSERVATION_SIZES[self.observer]
+
+    @property
+    def action_size(self) -> int:
+        """Per slot: acceleration (m/s^2) and lane-change decision (> 0.5: change)."""
+        return 2
+
+    # ------------------------------------------------------------------ schedules
+
+    def schedule_from_numpy(self, schedule: NumpySchedule) -> Schedule:
+        """The JAX form of a schedule drawn by `schedule.make_schedule`."""
+        return schedules.from_numpy(self.network, self.cfg, self.n_schedule, schedule)
+
+    def draw_schedule(self, key: jax.Array, params: EnvParams) -> Schedule:
+        """A random schedule in JAX with the distribution of `make_schedule`
+        (`schedules.draw`)."""
+        return schedules.draw(self.network, self.n_schedule, self.dt, key, params)
+
+    # ------------------------------------------------------------------ API
+
+    def reset(self, key: jax.Array, params: EnvParams) -> tuple[jax.Array, EnvState]:
+        """Start an episode with a freshly drawn schedule."""
+        return self.reset_to_schedule(self.draw_schedule(key, params), params)
+
+    def reset_to_schedule(
+        self, schedule: Schedule, params: EnvParams
+    ) -> tuple[jax.Array, EnvState]:
+        """Start an episode that inserts the vehicles of `schedule`."""
+        m, n, g = self.max_vehicles, self.n_schedule, self.n_legs
+        zf = jnp.zeros(m, jnp.float32)
+        state = EnvState(
+            step=jnp.int32(0),
+            active=jnp.zeros(m, bool),
+            vid=-jnp.ones(m, jnp.int32),
+            route=jnp.zeros(m, jnp.int32),
+            pos=zf,
+            speed=zf,
+            accel=zf,
+            is_av=jnp.zeros(m, bool),
+            speed_factor=jnp.ones(m, jnp.float32),
+            waiting_s=zf,
+            co2_mg=zf,
+            fuel_mg=zf,
+            schedule=schedule,
+            inserted=jnp.zeros(n, bool),
+            insert_s=jnp.full(n, jnp.nan, jnp.float32),
+            arrival_s=jnp.full(n, jnp.nan, jnp.float32),
+            trip_co2_mg=jnp.zeros(n, jnp.float32),
+            trip_fuel_mg=jnp.zeros(n, jnp.float32),
+            queue_sum=jnp.zeros(g, jnp.float32),
+            queue_max=jnp.zeros(g, jnp.float32),
+            queue_samples=jnp.int32(0),
+            overflow=jnp.int32(0),
+            collisions=jnp.int32(0),
+            registrations=Registrations.empty(m, g),
+        )
+        state = self._insert(state, params, jnp.float32(0.0))
+        return self.observation(state, params), state
+
+    def step(
+        self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams
+    ) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, dict[str, Any]]:
+        """One step of dt seconds; a finished episode restarts with a new schedule.
+
+        Args:
+            key: PRNG key (used by the reset).
+            state: the current state.
+            action: float (M, 2) per slot: acceleration and lane-change flag
+                (ignored for human drivers).
+            params: traced parameters.
+
+        Returns:
+            (obs, state, reward, done, info); reward is float (M,) per slot.
+        """
+        obs, new_state, reward, done, info = self.step_env(key, state, action, params)
+        # the reset runs only when the episode ended (under `vmap` a cond
+        # computes both branches; `agents.batch.BatchTrainer.env_step` resets
+        # a whole batch only in steps where some episode ended)
+        obs, state = jax.lax.cond(
+            done,
+            lambda: self.reset(key, params),
+            lambda: (obs, new_state),
+        )
+        return obs, state, reward, done, info
+
+    def step_env(
+        self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams
+    ) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, dict[str, Any]]:
+        """One step without the automatic reset (see `step`).
+
+        Every vehicle plans its speed as SUMO's IDM does with its class's
+        parameters. With ``agent.action: assertiveness`` an AV's
+        ``action[:, 0]`` retunes its tau and impatience for the step
+        (`jaxround.envs.assertiveness`; 0 is its vType). Otherwise (``accel``) an
+        AV's ``action[:, 0]`` (m/s^2) becomes the speed command
+        ``speed + action * dt`` (`command_from_action`), which SUMO applies
+        while it plans (`jaxround.core.command`): under speed mode 31 it can slow
+        an AV below its IDM speed, never raise it above its safe speed; a NaN
+        action leaves the AV to its vType. ``action[:, 1]`` (lane change) has
+        nothing to act on: every lane of these roundabouts is the only one of
+        its road.
+
+        Returns:
+            (obs, state, reward, done, info): reward float (M,) for the AV
+            slots (0 elsewhere); info["agent"] bool (M,) the slot held an AV
+            at the start of the step, info["terminated"] bool (M,) that AV
+            left the network, info["truncated"] bool (M,) the episode ended
+            with the vehicle still in it.
+        """
+        del key
+        p, net = params, self.net
+        pv = p.for_vehicles(state.is_av)  # (M,) accel, tau, gap acceptance
+        t = state.step.astype(jnp.float32) * self.dt  # time at the start of the step
+
+        # 1. the AVs' commands, applied as SUMO applies a TraCI speed command
+        #    while every vehicle plans (IDM, junctions); then all move
+        agent = state.active & state.is_av
+        if self.cfg.agent.action == "assertiveness":
+            pv = retuned_params(pv, action[:, 0], agent)
+            command = jnp.full_like(state.speed, jnp.nan)
+        else:
+            command = command_from_action(state, action, pv, self.dt)
+        v_next, regs, _, leader, gap = dynamics.planned_speed(
+            net, pv, state.route, state.pos, state.speed, state.speed_factor,
+            state.active, state.waiting_s, state.registrations, t, self.dt,
+            self.n_substeps, self.action_step, command=command,
+        )  # fmt: skip
+        pos_next = state.pos + v_next * self.dt
+        route_len = net.route_length[state.route]
+        arrived = state.active & (pos_next > route_len - dynamics.ARRIVAL_EPS)
+        # a vehicle whose bumper passed the back of the one it followed
+        lead = jnp.maximum(leader, 0)
+        gap_next = gap + (v_next[lead] - v_next) * self.dt
+        crashed = state.active & (leader >= 0) & ~arrived[lead] & (gap_next < -1e-3)
+        # SUMO counts the arrival step in full (measured against tripinfo)
+        co2_step, fuel_step = emissions.step_emissions_mg(state.speed, v_next, self.dt)
+        co2 = state.co2_mg + jnp.where(state.active, co2_step, 0.0)
+        fuel = state.fuel_mg + jnp.where(state.active, fuel_step, 0.0)
+        waiting = jnp.where(
+            v_next < dynamics.HALTING_SPEED, state.waiting_s + self.dt, 0.0
+        )
+        _, lane, _ = geometry.locate(net, state.route, state.pos)
+        v_desired = jnp.minimum(net.lane_speed[lane] * state.speed_factor, p.max_speed)
+        if self.cfg.agent.reward == "system":
+            pending = ~state.inserted & (state.schedule.depart_s <= t + 1e-4)
+            n_in_system = jnp.sum(state.active) + jnp.sum(pending)
+            reward = system_reward(
+                n_in_system, co2_step, state.active, agent, p, self.dt,
+                share=self.cfg.agent.share,
+            )  # fmt: skip
+        else:
+            reward = av_reward(v_next, v_desired, co2_step / self.dt, p)
+            reward = jnp.where(agent, reward, 0.0)
+
+        # 2. arrivals leave their slots
+        vid = jnp.where(arrived, state.vid, self.n_schedule)  # out of range: dropped
+        arrival_s = state.arrival_s.at[vid].set(t + self.dt, mode="drop")
+        trip_co2 = state.trip_co2_mg.at[vid].set(co2, mode="drop")
+        trip_fuel = state.trip_fuel_mg.at[vid].set(fuel, mode="drop")
+        active = state.active & ~arrived
+        state = state.replace(
+            step=state.step + 1,
+            active=active,
+            vid=jnp.where(active, state.vid, -1),
+            pos=jnp.where(active, pos_next, 0.0),
+            speed=jnp.where(active, v_next, 0.0),
+            accel=jnp.where(active, (v_next - state.speed) / self.dt, 0.0),
+            is_av=state.is_av & active,
+            waiting_s=jnp.where(active, waiting, 0.0),
+            co2_mg=jnp.where(active, co2, 0.0),
+            fuel_mg=jnp.where(active, fuel, 0.0),
+            arrival_s=arrival_s,
+            trip_co2_mg=trip_co2,
+            trip_fuel_mg=trip_fuel,
+            collisions=state.collisions + jnp.sum(crashed),
+            registrations=regs._replace(ok=regs.ok & active[:, None]),
+        )
+
+        # 3. insertions, then the queue statistics of the new time
+        state = self._insert(state, p, t + self.dt)
+        state = self._count_queues(state, p, t + self.dt)
+        done = state.step >= self.episode_steps
+        info = {
+            "agent": agent,
+            "terminated": agent & arrived,
+            "truncated": agent & ~arrived & done,
+            "arrived": jnp.sum(arrived),
+            "collisions": jnp.sum(crashed),
+            "overflow": state.overflow,
+            "n_active": jnp.sum(state.active),
+        }
+        return self.observation(state, p), state, reward, done, info
+
+    # ------------------------------------------------------------------ pieces
+
+    def _insert(self, state: EnvState, params: EnvParams, t: jax.Array) -> EnvState:
+        return departures.insert_departures(
+            self.net, state, params, t, dt=self.dt, n_substeps=self.n_substeps
+        )
+
+    def _count_queues(
+        self, state: EnvState, params: EnvParams, t: jax.Array
+    ) -> EnvState:
+        return queues.count_queues(self.net, state, params, t)
+
+    def observation(self, state: EnvState, params: EnvParams) -> jax.Array:
+        """The configured observer's rows, float (M, obs_size) (`envs.observe`)."""
+        if self.observer == "paper":
+            return observe.paper_observation(self.net, state, params)[0]
+        return observe.rich_observation(self.net, state, params, self.route_destination)
+
+
+def check_driver_classes(cfg: ScenarioConfig) -> None:
+    """The JAX environment drives both classes with the IDM and shares some of
+    their numbers; a config that differs there gets a clear error."""
+    hv, av = cfg.drivers.hv, cfg.drivers.av
+    for name in SHARED_DRIVER_FIELDS:
+        if getattr(hv, name) != getattr(av, name):
+            raise ConfigError(
+                f"drivers.av.{name}: {getattr(av, name)!r} differs from "
+                f"drivers.hv.{name} {getattr(hv, name)!r}; the JAX environment "
+                "drives both classes as an IDM with these numbers shared (AVs may "
+                "differ in accel, tau, jm_timegap_minor, impatience, speed_dev)"
+            )
+
+
+def make(
+    scenario: str | Path | ScenarioConfig = "milan",
+    max_vehicles: int = 32,
+    episode_s: float | None = None,
+    workdir: str | Path | None = None,
+) -> tuple[RoundaboutEnv, EnvParams]:
+    """Build the environment of a scenario: its network is compiled by netconvert.
+
+    Args:
+        scenario: a built-in name, a YAML path, or a `ScenarioConfig`.
+        max_vehicles: vehicle slots M.
+        episode_s: episode length; default demand horizon + 300 s.
+        workdir: where to write the SUMO network; a cache folder if None.
+
+    Returns:
+        (env, default params).
+    """
+    cfg = scenario if isinstance(scenario, ScenarioConfig) else load_config(scenario)
+    net_path = network_file(cfg, workdir)
+    env = RoundaboutEnv(
+        cfg, compile_network(net_path, cfg.n_legs), max_vehicles, episode_s
+    )
+    return env, env.default_params

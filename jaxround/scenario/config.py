@@ -1,0 +1,471 @@
+"""Scenario configuration: one YAML file describes a roundabout, its demand and drivers.
+
+The same `ScenarioConfig` drives both simulators. It is parsed strictly: an
+unknown key, a value of the wrong type or out of range raises `ConfigError`
+naming the field (for example ``demand.od[1]: row sums to 0.9, expected 1``)
+before anything runs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import typing
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+
+class ConfigError(ValueError):
+    """A configuration value is missing, unknown or out of range."""
+
+
+@dataclass(frozen=True)
+class LegConfig:
+    """One approach of the roundabout: an incoming and an outgoing single lane."""
+
+    name: str  # used in SUMO ids: letters, digits and '_' only
+    angle_deg: float  # direction of the leg seen from the ring centre, CCW from east
+    length_m: float  # length of the approach (and of the exit) road
+    speed_limit_mps: float  # speed limit on the approach and the exit
+
+    def validate(self, where: str) -> None:
+        if not self.name or not self.name.replace("_", "").isalnum():
+            raise ConfigError(f"{where}.name: {self.name!r} must be letters, digits, _")
+        _positive(self.length_m, f"{where}.length_m")
+        _positive(self.speed_limit_mps, f"{where}.speed_limit_mps")
+
+
+@dataclass(frozen=True)
+class NetworkConfig:
+    """Geometry of a single-lane, single-ring roundabout with 3 to 6 legs."""
+
+    ring_radius_m: float  # radius of the circulating lane's centre line
+    ring_speed_limit_mps: float  # speed limit on the ring
+    legs: tuple[LegConfig, ...]  # in counter-clockwise order
+
+    def validate(self, where: str) -> None:
+        _positive(self.ring_radius_m, f"{where}.ring_radius_m")
+        _positive(self.ring_speed_limit_mps, f"{where}.ring_speed_limit_mps")
+        if not 3 <= len(self.legs) <= 6:
+            raise ConfigError(f"{where}.legs: {len(self.legs)} legs, expected 3 to 6")
+        for i, leg in enumerate(self.legs):
+            leg.validate(f"{where}.legs[{i}]")
+        names = [leg.name for leg in self.legs]
+        if len(set(names)) != len(names):
+            raise ConfigError(f"{where}.legs: leg names repeat: {names}")
+        angles = [leg.angle_deg % 360.0 for leg in self.legs]
+        gaps = [
+            (angles[(i + 1) % len(angles)] - a) % 360.0 for i, a in enumerate(angles)
+        ]
+        if abs(sum(gaps) - 360.0) > 1e-6 or min(gaps) < 30.0:
+            raise ConfigError(
+                f"{where}.legs: angles {angles} must increase counter-clockwise "
+                "and be at least 30 degrees apart"
+            )
+        min_arc = min(gaps) * math.pi / 180.0 * self.ring_radius_m
+        if min_arc < 6.0:
+            raise ConfigError(
+                f"{where}.ring_radius_m: {self.ring_radius_m} m leaves only "
+                f"{min_arc:.1f} m of ring between two legs; need at least 6 m"
+            )
+
+
+@dataclass(frozen=True)
+class DemandConfig:
+    """How many vehicles leave from where to where within the horizon."""
+
+    n_vehicles: int  # exact number of vehicles inserted in the horizon
+    duration_s: float  # horizon over which departures are spread
+    origin_share: tuple[float, ...]  # share of vehicles entering from each leg
+    od: tuple[
+        tuple[float, ...], ...
+    ]  # od[i][j]: share of leg i's vehicles leaving at j
+
+    def validate(self, where: str, n_legs: int) -> None:
+        if self.n_vehicles < 1:
+            raise ConfigError(f"{where}.n_vehicles: {self.n_vehicles}, expected >= 1")
+        _positive(self.duration_s, f"{where}.duration_s")
+        _distribution(self.origin_share, f"{where}.origin_share", n_legs)
+        if len(self.od) != n_legs:
+            raise ConfigError(f"{where}.od: {len(self.od)} rows, expected {n_legs}")
+        for i, row in enumerate(self.od):
+            _distribution(row, f"{where}.od[{i}]", n_legs)
+            if row[i] != 0.0:
+                raise ConfigError(
+                    f"{where}.od[{i}][{i}]: {row[i]}; U-turns are not modelled, use 0"
+                )
+
+
+@dataclass(frozen=True)
+class DriverConfig:
+    """A SUMO vType: car-following model and its parameters (SUMO names in comments)."""
+
+    car_follow_model: str  # carFollowModel: "IDM" (human drivers) or "Krauss"
+    accel: float  # accel, m/s^2
+    decel: float  # decel, m/s^2
+    emergency_decel: float  # emergencyDecel, m/s^2
+    tau: float  # tau, desired time headway, s
+    min_gap: float  # minGap, m
+    delta: float  # IDM acceleration exponent
+    sigma: float  # Krauss driver imperfection; 0 for a deterministic vehicle
+    length: float  # length, m
+    max_speed: float  # maxSpeed, m/s
+    speed_dev: float  # speedDev: std of the desired-speed factor
+    action_step_length: (
+        float  # actionStepLength, s (SUMO floors it to a multiple of dt)
+    )
+    jm_timegap_minor: float  # jmTimegapMinor, s
+    impatience: float  # impatience, 0..1
+    jm_crossing_gap: float  # jmCrossingGap, m (pedestrian crossings only)
+    emission_class: str  # emissionClass
+
+    def validate(self, where: str) -> None:
+        if self.car_follow_model not in ("IDM", "Krauss"):
+            raise ConfigError(
+                f"{where}.car_follow_model: {self.car_follow_model!r}, "
+                "expected 'IDM' or 'Krauss'"
+            )
+        for name in (
+            "accel",
+            "decel",
+            "emergency_decel",
+            "tau",
+            "length",
+            "max_speed",
+            "delta",
+            "action_step_length",
+        ):
+            _positive(getattr(self, name), f"{where}.{name}")
+        for name in (
+            "min_gap",
+            "sigma",
+            "speed_dev",
+            "jm_timegap_minor",
+            "jm_crossing_gap",
+        ):
+            _non_negative(getattr(self, name), f"{where}.{name}")
+        if not 0.0 <= self.impatience <= 1.0:
+            raise ConfigError(f"{where}.impatience: {self.impatience}, expected [0, 1]")
+        if not 0.0 <= self.sigma <= 1.0:
+            raise ConfigError(f"{where}.sigma: {self.sigma}, expected [0, 1]")
+        if self.emergency_decel < self.decel:
+            raise ConfigError(
+                f"{where}.emergency_decel: {self.emergency_decel} is below decel "
+                f"{self.decel}"
+            )
+
+
+@dataclass(frozen=True)
+class DriversConfig:
+    """Vehicle types of the two classes."""
+
+    hv: DriverConfig  # human-driven vehicles
+    av: DriverConfig  # autonomous vehicles (their policy acts on top of this vType)
+
+
+@dataclass(frozen=True)
+class SimulationConfig:
+    """Time step and the defaults a run starts from."""
+
+    dt_s: float  # simulation step length, s
+    penetration: float  # share of AVs, 0..1
+    seed: int  # seed of the departure schedule
+
+    def validate(self, where: str) -> None:
+        _positive(self.dt_s, f"{where}.dt_s")
+        _unit_interval(self.penetration, f"{where}.penetration")
+        if self.seed < 0:
+            raise ConfigError(f"{where}.seed: {self.seed}, expected >= 0")
+
+
+#: Observers of the AV policy (`jaxround.envs.observe`).
+OBSERVERS = ("paper", "rich")
+#: The AVs' rewards (`jaxround.envs.reward`).
+REWARDS = ("paper", "system")
+#: What an AV's action means (`jaxround.envs.roundabout.RoundaboutEnv.step_env`).
+ACTIONS = ("accel", "assertiveness")
+
+
+@dataclass(frozen=True)
+class AgentConfig:
+    """What an AV's policy sees and is rewarded for (`envs.observe`, `envs.reward`)."""
+
+    observer: str = "rich"  # "paper" (Eq. 1, 10 numbers) or "rich" (Eq. 1 + more)
+    reward: str = "paper"  # "paper" (Eq. 3) or "system" (time and CO2 of all)
+    action: str = "accel"  # "accel" (a speed command) or "assertiveness" (vType)
+    speed_weight: float = 1.0  # paper: weight of the desired-velocity term of Eq. 3
+    pollution_weight: float = 1.0  # paper: weight of the pollution term of Eq. 3
+    time_penalty: float = 1.0  # paper: subtracted per step (0: Eq. 3 exactly)
+    time_weight: float = 1.0  # system: cost of one vehicle-second in the system
+    co2_weight: float = 0.5  # system: cost of one gram of CO2
+    share: float = (
+        0.5  # system: weight of all vehicles' cost (1) against the AV's own (0)
+    )
+
+    def validate(self, where: str) -> None:
+        if self.observer not in OBSERVERS:
+            raise ConfigError(
+                f"{where}.observer: {self.observer!r}, expected one of {OBSERVERS}"
+            )
+        if self.action not in ACTIONS:
+            raise ConfigError(
+                f"{where}.action: {self.action!r}, expected one of {ACTIONS}"
+            )
+        if self.reward not in REWARDS:
+            raise ConfigError(
+                f"{where}.reward: {self.reward!r}, expected one of {REWARDS}"
+            )
+        _unit_interval(self.share, f"{where}.share")
+        for name in ("speed_weight", "pollution_weight", "time_penalty",
+                     "time_weight", "co2_weight"):  # fmt: skip
+            _non_negative(getattr(self, name), f"{where}.{name}")
+        if self.speed_weight + self.pollution_weight <= 0:
+            raise ConfigError(f"{where}: speed_weight + pollution_weight must be > 0")
+
+
+@dataclass(frozen=True)
+class ScenarioConfig:
+    """Everything both simulators need to run the same roundabout."""
+
+    name: str  # scenario name, used for file names
+    network: NetworkConfig
+    demand: DemandConfig
+    drivers: DriversConfig
+    simulation: SimulationConfig
+    agent: AgentConfig = AgentConfig()  # the AVs' observer and reward
+    description: str = ""  # free text
+
+    def validate(self) -> None:
+        if not self.name or not self.name.replace("_", "").replace("-", "").isalnum():
+            raise ConfigError(f"name: {self.name!r} must be letters, digits, _ or -")
+        self.network.validate("network")
+        self.demand.validate("demand", len(self.network.legs))
+        self.drivers.hv.validate("drivers.hv")
+        self.drivers.av.validate("drivers.av")
+        self.simulation.validate("simulation")
+        self.agent.validate("agent")
+        if self.demand.duration_s < self.simulation.dt_s:
+            raise ConfigError(
+                "demand.duration_s: shorter than one step (simulation.dt_s)"
+            )
+
+    @property
+    def n_legs(self) -> int:
+        return len(self.network.legs)
+
+    def with_overrides(self, **simulation: Any) -> ScenarioConfig:
+        """A validated copy with these `simulation` fields replaced."""
+        unknown = set(simulation) - {
+            f.name for f in dataclasses.fields(SimulationConfig)
+        }
+        if unknown:
+            raise ConfigError(f"simulation: unknown override(s) {sorted(unknown)}")
+        new = dataclasses.replace(
+            self, simulation=dataclasses.replace(self.simulation, **simulation)
+        )
+        new.validate()
+        return new
+
+    def with_human_drivers(self, **values: float) -> ScenarioConfig:
+        """A validated copy with these human-driver (`drivers.hv`) numbers
+        replaced, e.g. ``with_human_drivers(accel=2.0, tau=1.1)``."""
+        unknown = set(values) - {f.name for f in dataclasses.fields(DriverConfig)}
+        if unknown:
+            raise ConfigError(f"drivers.hv: unknown field(s) {sorted(unknown)}")
+        hv = dataclasses.replace(
+            self.drivers.hv, **{k: float(v) for k, v in values.items()}
+        )
+        new = dataclasses.replace(
+            self, drivers=dataclasses.replace(self.drivers, hv=hv)
+        )
+        new.validate()
+        return new
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    def roads_and_drivers_fingerprint(self) -> str:
+        """Short hash of what a trained policy depends on: network, drivers, dt
+        (not demand, seed, penetration or the observer, which a policy names)."""
+        d = {"network": self.to_dict()["network"], "drivers": self.to_dict()["drivers"]}
+        d["dt_s"] = self.simulation.dt_s
+        blob = json.dumps(d, sort_keys=True).encode()
+        return hashlib.sha256(blob).hexdigest()[:16]
+
+    def fingerprint(self) -> str:
+        """Short hash of network, demand and drivers (not of seed or penetration)."""
+        d = self.to_dict()
+        d.pop("simulation")
+        d.pop("description")
+        d.pop("agent")
+        d["dt_s"] = self.simulation.dt_s
+        blob = json.dumps(d, sort_keys=True).encode()
+        return hashlib.sha256(blob).hexdigest()[:16]
+
+
+# --------------------------------------------------------------------------- loading
+
+
+#: Files in `configs` whose name starts so are trainer configs, not scenarios.
+TRAINER_PREFIXES = ("ppo_", "apg_")
+
+
+def builtin_configs() -> list[str]:
+    """Names of the scenarios shipped in the `configs` package."""
+    files = resources.files("configs").iterdir()
+    return sorted(
+        p.name[:-5]
+        for p in files
+        if p.name.endswith(".yaml") and not p.name.startswith(TRAINER_PREFIXES)
+    )
+
+
+def load_config(source: str | Path | None = None) -> ScenarioConfig:
+    """Load and validate a scenario.
+
+    Args:
+        source: a path to a YAML file, or the name of a built-in scenario
+            (``"milan"``); None gives the built-in default, ``"milan"``.
+
+    Returns:
+        The validated `ScenarioConfig`.
+
+    Raises:
+        ConfigError: the file is missing, not YAML, or a field is wrong.
+    """
+    source = "milan" if source is None else source
+    return config_from_dict(read_yaml(source, builtin_configs(), "scenario"))
+
+
+def read_yaml(source: str | Path, builtins: list[str], what: str) -> Any:
+    """The parsed YAML of a file path or of a built-in file of `configs`.
+
+    Args:
+        source: a ``.yaml`` path, or one of `builtins`.
+        builtins: names of the built-in files this kind of config may use.
+        what: the kind of config, for the error messages ("scenario").
+
+    Raises:
+        ConfigError: the file is missing, unknown or not YAML.
+    """
+    path = Path(source)
+    if path.suffix in (".yaml", ".yml") or path.exists():
+        if not path.is_file():
+            raise ConfigError(f"{what} config file {str(path)!r} does not exist")
+        text = path.read_text()
+    elif str(source) in builtins:
+        text = resources.files("configs").joinpath(f"{source}.yaml").read_text()
+    else:
+        raise ConfigError(
+            f"{source!r}: no {what} config file of that name, nor a built-in one "
+            f"({', '.join(builtins)})"
+        )
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise ConfigError(f"{source}: not valid YAML: {err}") from None
+
+
+def config_from_dict(data: Any) -> ScenarioConfig:
+    """Build and validate a `ScenarioConfig` from plain data (as parsed from YAML)."""
+    cfg = _build(ScenarioConfig, data, "")
+    cfg.validate()
+    return cfg
+
+
+def _build(tp: Any, value: Any, where: str) -> Any:
+    """Convert plain data into the annotated type `tp`, strictly."""
+    label = where or "config"
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(value, dict):
+            raise ConfigError(
+                f"{label}: expected a mapping, got {type(value).__name__}"
+            )
+        hints = typing.get_type_hints(tp)
+        fields = {f.name: f for f in dataclasses.fields(tp)}
+        unknown = sorted(set(value) - set(fields))
+        if unknown:
+            raise ConfigError(
+                f"{label}: unknown key {unknown[0]!r} (allowed: {', '.join(fields)})"
+            )
+        kwargs = {}
+        for name, f in fields.items():
+            sub = f"{where}.{name}" if where else name
+            if name not in value:
+                if f.default is dataclasses.MISSING:
+                    raise ConfigError(f"{sub}: missing")
+                continue
+            kwargs[name] = _build(hints[name], value[name], sub)
+        return tp(**kwargs)
+    origin = typing.get_origin(tp)
+    if origin is tuple:
+        if not isinstance(value, list | tuple):
+            raise ConfigError(f"{label}: expected a list, got {type(value).__name__}")
+        (item_tp, _) = typing.get_args(tp)
+        return tuple(_build(item_tp, v, f"{label}[{i}]") for i, v in enumerate(value))
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"{label}: expected a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ConfigError(f"{label}: expected a finite number, got {value!r}")
+        return float(value)
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{label}: expected an integer, got {value!r}")
+        return value
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{label}: expected true or false, got {value!r}")
+        return value
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{label}: expected a string, got {value!r}")
+        return value
+    raise TypeError(f"unsupported config type {tp!r}")  # pragma: no cover
+
+
+def _positive(x: float, where: str) -> None:
+    if not x > 0:
+        raise ConfigError(f"{where}: {x}, expected > 0")
+
+
+def _non_negative(x: float, where: str) -> None:
+    if not x >= 0:
+        raise ConfigError(f"{where}: {x}, expected >= 0")
+
+
+def _unit_interval(x: float, where: str) -> None:
+    if not 0.0 <= x <= 1.0:
+        raise ConfigError(f"{where}: {x}, expected a share in [0, 1]")
+
+
+def _distribution(row: tuple[float, ...], where: str, n: int) -> None:
+    if len(row) != n:
+        raise ConfigError(f"{where}: {len(row)} entries, expected {n} (one per leg)")
+    for j, x in enumerate(row):
+        if x < 0:
+            raise ConfigError(f"{where}[{j}]: {x}, expected >= 0")
+    if abs(sum(row) - 1.0) > 1e-6:
+        raise ConfigError(f"{where}: sums to {sum(row):.6g}, expected 1")
+
+
+__all__ = [
+    "AgentConfig",
+    "ConfigError",
+    "DemandConfig",
+    "DriverConfig",
+    "DriversConfig",
+    "LegConfig",
+    "NetworkConfig",
+    "ScenarioConfig",
+    "SimulationConfig",
+    "builtin_configs",
+    "config_from_dict",
+    "load_config",
+]

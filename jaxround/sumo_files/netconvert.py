@@ -1,0 +1,130 @@
+"""Write a roundabout as SUMO plain XML and compile it with netconvert.
+
+Nodes: ``c{i}`` where leg ``i`` meets the ring, ``o{i}`` the leg's far end.
+The edges' ids are those of `jaxround.scenario.edges`.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import tempfile
+from pathlib import Path
+from xml.sax.saxutils import quoteattr
+
+from jaxround.scenario.config import NetworkConfig, ScenarioConfig
+from jaxround.scenario.edges import in_edge, out_edge, ring_edge
+from jaxround.sumo_files.binaries import sumo_binary
+
+
+def _point(radius: float, angle_deg: float) -> tuple[float, float]:
+    a = math.radians(angle_deg)
+    return radius * math.cos(a), radius * math.sin(a)
+
+
+def _fmt(p: tuple[float, float]) -> str:
+    return f"{p[0]:.3f},{p[1]:.3f}"
+
+
+def plain_xml(net: NetworkConfig) -> tuple[str, str]:
+    """The `.nod.xml` and `.edg.xml` texts of the roundabout.
+
+    Returns:
+        (nodes_xml, edges_xml)
+    """
+    n = len(net.legs)
+    r = net.ring_radius_m
+    nodes = ["<nodes>"]
+    for i, leg in enumerate(net.legs):
+        cx, cy = _point(r, leg.angle_deg)
+        ox, oy = _point(r + leg.length_m, leg.angle_deg)
+        nodes.append(f'  <node id="c{i}" x="{cx:.3f}" y="{cy:.3f}" type="priority"/>')
+        nodes.append(f'  <node id="o{i}" x="{ox:.3f}" y="{oy:.3f}" type="dead_end"/>')
+    nodes.append("</nodes>")
+
+    edges = ["<edges>"]
+    for i, leg in enumerate(net.legs):
+        speed = f"{leg.speed_limit_mps:.4f}"
+        name = quoteattr(leg.name)
+        edges.append(
+            f'  <edge id="{in_edge(i)}" from="o{i}" to="c{i}" numLanes="1" '
+            f'speed="{speed}" priority="1" name={name}/>'
+        )
+        edges.append(
+            f'  <edge id="{out_edge(i)}" from="c{i}" to="o{i}" numLanes="1" '
+            f'speed="{speed}" priority="1" name={name}/>'
+        )
+    for i, leg in enumerate(net.legs):
+        a0 = leg.angle_deg
+        a1 = net.legs[(i + 1) % n].angle_deg
+        sweep = (a1 - a0) % 360.0
+        k = max(4, int(sweep / 5.0))
+        shape = " ".join(_fmt(_point(r, a0 + sweep * s / k)) for s in range(k + 1))
+        edges.append(
+            f'  <edge id="{ring_edge(i)}" from="c{i}" to="c{(i + 1) % n}" numLanes="1" '
+            f'speed="{net.ring_speed_limit_mps:.4f}" priority="2" shape="{shape}"/>'
+        )
+    ring_nodes = " ".join(f"c{i}" for i in range(n))
+    ring_edges = " ".join(ring_edge(i) for i in range(n))
+    edges.append(f'  <roundabout nodes="{ring_nodes}" edges="{ring_edges}"/>')
+    edges.append("</edges>")
+    return "\n".join(nodes) + "\n", "\n".join(edges) + "\n"
+
+
+def build_network(net: NetworkConfig, out_dir: Path, stem: str) -> Path:
+    """Write `<stem>.nod.xml`, `<stem>.edg.xml` and compile `<stem>.net.xml`.
+
+    Raises:
+        RuntimeError: netconvert failed (its message is included).
+    """
+    out_dir.mkdir(parents=True, exist_ok=True)
+    nod, edg = plain_xml(net)
+    nod_path = out_dir / f"{stem}.nod.xml"
+    edg_path = out_dir / f"{stem}.edg.xml"
+    net_path = out_dir / f"{stem}.net.xml"
+    nod_path.write_text(nod)
+    edg_path.write_text(edg)
+    cmd = [
+        sumo_binary("netconvert"),
+        "--node-files",
+        str(nod_path),
+        "--edge-files",
+        str(edg_path),
+        "--output-file",
+        str(net_path),
+        "--no-turnarounds",
+        "true",
+        "--roundabouts.guess",
+        "false",
+        "--junctions.limit-turn-speed",
+        "-1",
+        "--offset.disable-normalization",
+        "true",
+        "--no-warnings",
+        "true",
+    ]
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    if done.returncode != 0 or not net_path.exists():
+        raise RuntimeError(f"netconvert failed:\n{done.stderr or done.stdout}")
+    return net_path
+
+
+def network_file(cfg: ScenarioConfig, workdir: str | Path | None = None) -> Path:
+    """The scenario's `.net.xml`, built once per network fingerprint and cached.
+
+    The cache lives in ``$XDG_CACHE_HOME/jaxround/networks`` (``~/.cache`` by
+    default); a network is built in a temporary folder and moved into place, so
+    parallel processes never see half a file.
+    """
+    if workdir is None:
+        cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
+        workdir = cache / "jaxround" / "networks" / f"{cfg.name}-{cfg.fingerprint()}"
+    workdir = Path(workdir)
+    path = workdir / f"{cfg.name}.net.xml"
+    if not path.exists():
+        workdir.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+            built = build_network(cfg.network, Path(tmp), cfg.name)
+            os.replace(built, path)
+    return path
