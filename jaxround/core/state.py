@@ -10,7 +10,7 @@
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -143,6 +143,36 @@ class EnvParams:
         )
 
 
+def _check(fields: dict[str, tuple[Any, tuple[int, ...], str]], where: str) -> None:
+    """Raise ValueError unless each field has its trailing shape and its kind.
+
+    `fields` maps a name to (array, expected trailing shape, dtype kind: "b"
+    bool, "i" integer, "f" float). Leading axes (a vmapped batch, a time axis)
+    are allowed and must be the same for every field.
+    """
+    batch = None
+    for name, (value, trailing, kind) in fields.items():
+        shape = tuple(jnp.shape(value))
+        lead = shape[: len(shape) - len(trailing)]
+        if len(shape) < len(trailing) or shape[len(lead) :] != trailing:
+            raise ValueError(
+                f"{where}.{name}: shape {shape}, expected (..., "
+                f"{', '.join(map(str, trailing))})"
+            )
+        if batch is None:
+            batch = lead
+        elif lead != batch:
+            raise ValueError(
+                f"{where}.{name}: leading axes {lead}, the other fields have {batch}"
+            )
+        actual = jnp.result_type(value).kind
+        if actual != kind and not (kind == "i" and actual == "u"):
+            expected = {"b": "bool", "i": "int", "f": "float"}[kind]
+            raise ValueError(
+                f"{where}.{name}: dtype {jnp.result_type(value)}, expected {expected}"
+            )
+
+
 @struct.dataclass
 class Schedule:
     """The N vehicles of an episode, sorted by departure. Arrays (N,).
@@ -160,6 +190,20 @@ class Schedule:
     origin: jax.Array
     speed_factor: jax.Array
     is_av: jax.Array
+
+    def validate(self) -> None:
+        """Check that every field is (..., N) with its dtype; ValueError if not."""
+        n = jnp.shape(self.depart_s)[-1]
+        _check(
+            {
+                "depart_s": (self.depart_s, (n,), "f"),
+                "route": (self.route, (n,), "i"),
+                "origin": (self.origin, (n,), "i"),
+                "speed_factor": (self.speed_factor, (n,), "f"),
+                "is_av": (self.is_av, (n,), "b"),
+            },
+            "Schedule",
+        )
 
 
 class Registrations(NamedTuple):
@@ -241,3 +285,40 @@ class EnvState:
     overflow: jax.Array
     collisions: jax.Array
     registrations: Registrations
+
+    def validate(self) -> None:
+        """Check shapes and dtypes: per-slot fields (..., M), per-vehicle fields
+        (..., N), queue fields (..., G), registrations (..., M, G), counters
+        (...,), the same leading axes everywhere; ValueError naming the field.
+
+        Call it outside `jit` (it reads shapes only, so it works on traced
+        values too, but raises at trace time)."""
+        m = jnp.shape(self.active)[-1]
+        n = jnp.shape(self.inserted)[-1]
+        g = jnp.shape(self.queue_sum)[-1]
+        self.schedule.validate()
+        fields: dict[str, tuple[Any, tuple[int, ...], str]] = {
+            "step": (self.step, (), "i"),
+            "active": (self.active, (m,), "b"),
+            "vid": (self.vid, (m,), "i"),
+            "route": (self.route, (m,), "i"),
+            "is_av": (self.is_av, (m,), "b"),
+            "inserted": (self.inserted, (n,), "b"),
+            "queue_samples": (self.queue_samples, (), "i"),
+            "overflow": (self.overflow, (), "i"),
+            "collisions": (self.collisions, (), "i"),
+            "schedule.depart_s": (self.schedule.depart_s, (n,), "f"),
+            "registrations.ok": (self.registrations.ok, (m, g), "b"),
+        }
+        for name in ("pos", "speed", "accel", "speed_factor", "waiting_s", "co2_mg",
+                     "fuel_mg"):  # fmt: skip
+            fields[name] = (getattr(self, name), (m,), "f")
+        for name in ("insert_s", "arrival_s", "trip_co2_mg", "trip_fuel_mg"):
+            fields[name] = (getattr(self, name), (n,), "f")
+        for name in ("queue_sum", "queue_max"):
+            fields[name] = (getattr(self, name), (g,), "f")
+        for name in Registrations._fields[1:]:
+            fields[f"registrations.{name}"] = (
+                getattr(self.registrations, name), (m, g), "f",
+            )  # fmt: skip
+        _check(fields, "EnvState")
