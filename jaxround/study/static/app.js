@@ -157,7 +157,9 @@ async function main() {
     go("practice-intro");
   };
   if (state.step === "consent" && study.places_free <= 0) {
-    $("busy-message").textContent = `All ${study.max_participants} driving places are taken.`;
+    const n = study.max_participants;
+    $("busy-message").textContent = n === 1 ? "The study's driving place is taken."
+      : `All ${n} driving places are taken.`;
     $("busy-retry").onclick = () => location.reload();
     return show("busy");
   }
