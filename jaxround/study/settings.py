@@ -15,6 +15,9 @@ HIGH_SHARE = 0.8
 MAX_PARTICIPANTS_LIMIT = 32
 #: Longest step of a ride: the issue asks for at least 10 Hz.
 MAX_STEP_S = 0.1
+#: Shortest wait for the browser's start: the page counts down 2 s between
+#: the ride's "ready" and its "start".
+MIN_CONNECT_TIMEOUT_S = 3.0
 
 
 @dataclass(frozen=True)
@@ -39,7 +42,10 @@ class StudySettings:
         ego_origin: name of the leg the ego enters from.
         ego_destination: name of the leg it leaves at.
         connect_timeout_s: a ride whose browser does not start it within
-            this many seconds after it is ready is ended and reaped.
+            this many seconds after its warm-up is ended (status
+            ``not_started``) and reaped. Until then it holds its place: a
+            ride asked for and never driven keeps a place for its process's
+            start, the warm-up and this long.
     """
 
     policy: Path
@@ -73,9 +79,14 @@ class StudySettings:
                 f"step: {self.step_s} s does not divide the policy's step "
                 f"{cfg.simulation.dt_s} s (simulation.dt_s of {cfg.name!r})"
             )
-        for name in ("ride_s", "practice_s", "connect_timeout_s"):
+        for name in ("ride_s", "practice_s"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name}: {getattr(self, name)}, expected > 0")
+        if self.connect_timeout_s < MIN_CONNECT_TIMEOUT_S:
+            raise ValueError(
+                f"connect timeout: {self.connect_timeout_s} s, expected at least "
+                f"{MIN_CONNECT_TIMEOUT_S} s (the page counts down before it starts)"
+            )
         if self.warmup_s < 0:
             raise ValueError(f"warm-up: {self.warmup_s} s, expected >= 0")
         if self.warmup_s + self.ride_s > cfg.demand.duration_s:
