@@ -65,6 +65,7 @@ def cmd_serve(args: argparse.Namespace) -> None:
         ego_origin=args.ego_from,
         ego_destination=args.ego_to,
         connect_timeout_s=args.connect_timeout_s,
+        pedal_map=args.pedal_map,
     )
     cfg = load_config(settings.config)
     try:
@@ -228,6 +229,14 @@ def add_study_parser(sub: argparse._SubParsersAction) -> None:
         "it; a ride asked for and never driven holds its place until then, "
         f"and is stored as not_started (default 60, at least "
         f"{MIN_CONNECT_TIMEOUT_S:g})",
+    )
+    p.add_argument(
+        "--pedal-map",
+        type=Path,
+        default=None,
+        help="JSON file of pedal set-ups per gamepad id, for wheels without the "
+        "standard mapping (the page's 'Set up pedals' shows one); a browser's "
+        "own set-up comes first",
     )
     p.set_defaults(func=cmd_serve)
 

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from jaxround.config import ScenarioConfig
+from jaxround.study.pedals import read_pedal_map
 
 #: The two AV shares of the paper's rides (its Tables 5-7 compare them).
 LOW_SHARE = 0.2
@@ -46,6 +47,9 @@ class StudySettings:
             ``not_started``) and reaped. Until then it holds its place: a
             ride asked for and never driven keeps a place for its process's
             start, the warm-up and this long.
+        pedal_map: a JSON file of pedal set-ups per gamepad id, used by
+            browsers that have not set up that pad themselves
+            (`jaxround.study.pedals`).
     """
 
     policy: Path
@@ -60,6 +64,7 @@ class StudySettings:
     ego_origin: str = "east"
     ego_destination: str = "south"
     connect_timeout_s: float = 60.0
+    pedal_map: Path | None = None
 
     def validate(self, cfg: ScenarioConfig) -> None:
         """Raise ValueError naming the first setting that cannot work with `cfg`."""
@@ -96,6 +101,8 @@ class StudySettings:
             )
         if self.seed is not None and self.seed < 0:
             raise ValueError(f"seed: {self.seed}, expected >= 0")
+        if self.pedal_map is not None:
+            read_pedal_map(self.pedal_map)
         origin = leg_index(cfg, self.ego_origin)
         if origin == leg_index(cfg, self.ego_destination):
             raise ValueError(
