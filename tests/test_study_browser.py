@@ -13,81 +13,36 @@ Without a browser the test is skipped, unless ``JAXROUND_REQUIRE_BROWSER=1``
 from __future__ import annotations
 
 import json
-import os
-import shutil
-import subprocess
-import sys
 import time
-import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from jaxround.apps.cli.main import main
-from jaxround.scenario.config import load_config
-from jaxround.study.load import free_port, write_standin_policy
 from jaxround.study.storage import StudyDatabase
+from tests.study_browser import chromium_driver, study_server
 
 pytestmark = pytest.mark.sumo
 
-BROWSERS = ("chromium", "chromium-browser", "google-chrome")
 RIDE_S, PRACTICE_S = 6.0, 5.0
 #: The answers given, as option numbers on the page (unblinded: the paper's).
 ANSWERS = {"smoothness": 3, "safety": 2, "preference": 0}
 
 
-def browser_paths() -> tuple[str, str] | None:
-    browser = next((p for p in map(shutil.which, BROWSERS) if p), None)
-    driver = shutil.which("chromedriver")
-    return (browser, driver) if browser and driver else None
-
-
 @pytest.fixture(scope="module")
 def chromium() -> Iterator[object]:
-    paths = browser_paths()
-    if paths is None:
-        message = "no chromium and chromedriver on PATH (apt-get install chromium " \
-                  "chromium-driver)"  # fmt: skip
-        if os.environ.get("JAXROUND_REQUIRE_BROWSER") == "1":
-            pytest.fail(message + "; JAXROUND_REQUIRE_BROWSER=1 asks for the browser")
-        pytest.skip(message)
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
-    options = webdriver.ChromeOptions()
-    options.binary_location = paths[0]
-    for flag in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage",
-                 "--window-size=1280,720", "--use-angle=swiftshader",
-                 "--enable-unsafe-swiftshader"):  # fmt: skip
-        options.add_argument(flag)
-    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-    driver = webdriver.Chrome(service=Service(paths[1]), options=options)
-    yield driver
-    driver.quit()
+    with chromium_driver() as driver:
+        yield driver
 
 
 @pytest.fixture(scope="module")
 def study(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, Path]]:
     folder = tmp_path_factory.mktemp("browser-study")
-    policy = write_standin_policy(folder, load_config("milan"))
-    db, port = folder / "study.sqlite", free_port()
-    command = [sys.executable, "-m", "jaxround", "study", "serve", "--policy",
-               str(policy), "--db", str(db), "--port", str(port), "--warmup-s", "15",
-               "--ride-s", str(RIDE_S), "--practice-s", str(PRACTICE_S)]  # fmt: skip
-    server = subprocess.Popen(command, stdout=subprocess.DEVNULL)
-    base = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 60
-    while True:
-        try:
-            with urllib.request.urlopen(f"{base}/api/study", timeout=5):
-                break
-        except OSError:
-            assert server.poll() is None and time.monotonic() < deadline
-            time.sleep(0.2)
-    yield base, db
-    server.terminate()
-    server.wait(timeout=30)
+    options = ("--warmup-s", "15", "--ride-s", str(RIDE_S), "--practice-s",
+               str(PRACTICE_S))  # fmt: skip
+    with study_server(folder, *options) as running:
+        yield running
 
 
 def test_a_participant_completes_the_study_in_chromium(

@@ -7,6 +7,7 @@ The server runs in this process (uvicorn in a thread) on a free port of
 
 from __future__ import annotations
 
+import contextlib
 import json
 import socket
 import threading
@@ -15,6 +16,7 @@ import urllib.error
 import urllib.request
 from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -23,6 +25,7 @@ from fastapi import FastAPI
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 
+from jaxround.apps.cli.main import main
 from jaxround.scenario.config import load_config
 from jaxround.study.load import free_port, write_standin_policy
 from jaxround.study.protocol import MAX_MESSAGE_BYTES, MAX_MESSAGES_PER_S
@@ -91,14 +94,13 @@ class Server:
         return self.app.state.manager.rides[ride["ride_id"]].process
 
 
-@pytest.fixture(scope="module")
-def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
-    folder = tmp_path_factory.mktemp("study")
+@contextlib.contextmanager
+def serving(folder: Path, **changes: Any) -> Iterator[Server]:
+    """A study server of short practice rides, with `changes` to its settings."""
     cfg = load_config("milan")
     settings = StudySettings(
-        policy=write_standin_policy(folder, cfg), max_participants=2,
-        practice_s=PRACTICE_S, ride_s=PRACTICE_S, warmup_s=10.0,
-        connect_timeout_s=30.0,
+        policy=write_standin_policy(folder, cfg), practice_s=PRACTICE_S,
+        ride_s=PRACTICE_S, warmup_s=10.0, **changes,
     )  # fmt: skip
     settings.validate(cfg)
     database = StudyDatabase(folder / "study.sqlite")
@@ -113,9 +115,18 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
     while not uv.started and time.monotonic() < deadline:
         time.sleep(0.05)
     assert uv.started
-    yield Server(f"http://127.0.0.1:{port}", app, database)
-    uv.should_exit = True
-    thread.join(60)
+    try:
+        yield Server(f"http://127.0.0.1:{port}", app, database)
+    finally:
+        uv.should_exit = True
+        thread.join(60)
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
+    folder = tmp_path_factory.mktemp("study")
+    with serving(folder, max_participants=2, connect_timeout_s=30.0) as running:
+        yield running
 
 
 @pytest.fixture(autouse=True)
@@ -316,3 +327,59 @@ def test_the_page_and_its_scripts_come_from_the_server(server: Server) -> None:
     status, roads = server.http("GET", "/api/roads")
     lanes = {lane["id"] for lane in roads["lanes"]}
     assert {"in_0_0", "ring_0_0", "out_3_0"} <= lanes
+
+
+HOLD_S = 3.0
+
+
+@pytest.fixture(scope="module")
+def one_place(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
+    folder = tmp_path_factory.mktemp("one-place")
+    with serving(folder, max_participants=1, connect_timeout_s=HOLD_S) as running:
+        yield running
+
+
+def test_a_ride_never_connected_holds_its_place_until_the_timeout(
+    one_place: Server,
+) -> None:
+    server = one_place
+    held = server.ride()
+    asked = time.monotonic()
+    process = server.process(held)
+    waiting = {"participant_id": server.participant(), "kind": "practice"}
+    busy = []
+    while time.monotonic() - asked < HOLD_S:  # the ride cannot end before this
+        busy.append(server.http("POST", "/api/rides", waiting))
+        time.sleep(0.5)
+    assert len(busy) >= 3
+    assert all(status == 503 and "driving place is taken" in body["detail"]
+               for status, body in busy), busy  # fmt: skip
+    stored = server.stored_ride(held["ride_id"])
+    assert time.monotonic() - asked >= HOLD_S
+    assert (stored["status"], stored["steps"]) == ("not_started", 0)
+    assert stored["error"] == "the browser did not start it"
+    assert reaped(process) and process.exitcode == 0
+    deadline = time.monotonic() + 15
+    while server.app.state.manager.rides:
+        assert time.monotonic() < deadline, "the place was not freed"
+        time.sleep(0.05)
+    ride = server.ride(waiting["participant_id"])  # the next participant drives
+    with server.socket(ride) as ws:
+        until(ws, "ready")
+        ws.send(json.dumps({"type": "start"}))
+        frames, end = drive_to_end(ws)
+    assert end["status"] == "time_limit" and frames > 0
+
+
+def test_serve_states_the_hold_and_refuses_a_timeout_below_the_countdown(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit):
+        main(["study", "serve", "--help"])
+    assert "--connect-timeout-s" in capsys.readouterr().out
+    policy = write_standin_policy(tmp_path, load_config("milan"))
+    argv = ["study", "serve", "--policy", str(policy), "--db",
+            str(tmp_path / "s.sqlite"), "--connect-timeout-s", "1"]  # fmt: skip
+    assert main(argv) == 2
+    assert "connect timeout: 1.0 s, expected at least 3.0 s" in capsys.readouterr().err
+    assert not (tmp_path / "s.sqlite").exists()  # refused before anything

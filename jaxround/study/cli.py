@@ -10,7 +10,11 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from jaxround.study.settings import MAX_PARTICIPANTS_LIMIT, StudySettings
+from jaxround.study.settings import (
+    MAX_PARTICIPANTS_LIMIT,
+    MIN_CONNECT_TIMEOUT_S,
+    StudySettings,
+)
 
 if TYPE_CHECKING:
     from jaxround.study.storage import StudyDatabase
@@ -60,6 +64,8 @@ def cmd_serve(args: argparse.Namespace) -> None:
         seed=args.seed,
         ego_origin=args.ego_from,
         ego_destination=args.ego_to,
+        connect_timeout_s=args.connect_timeout_s,
+        pedal_map=args.pedal_map,
     )
     cfg = load_config(settings.config)
     try:
@@ -215,6 +221,23 @@ def add_study_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=None, help="traffic schedule seed")
     p.add_argument("--ego-from", default="east", help="leg the ego enters from")
     p.add_argument("--ego-to", default="south", help="leg the ego leaves at")
+    p.add_argument(
+        "--connect-timeout-s",
+        type=_seconds,
+        default=60.0,
+        help="seconds a ride waits after its warm-up for the browser to start "
+        "it; a ride asked for and never driven holds its place until then, "
+        f"and is stored as not_started (default 60, at least "
+        f"{MIN_CONNECT_TIMEOUT_S:g})",
+    )
+    p.add_argument(
+        "--pedal-map",
+        type=Path,
+        default=None,
+        help="JSON file of pedal set-ups per gamepad id, for wheels without the "
+        "standard mapping (the page's 'Set up pedals' shows one); a browser's "
+        "own set-up comes first",
+    )
     p.set_defaults(func=cmd_serve)
 
     for name, func, what in (

@@ -90,9 +90,14 @@ class RideManager:
         """Start a ride's process; BusyError when every place is taken."""
         if self.places_free <= 0:
             n = self.settings.max_participants
+            taken = (
+                "The study's driving place is taken"
+                if n == 1
+                else f"All {n} driving places are taken"
+            )
             raise BusyError(
-                f"All {n} driving place{'s' if n > 1 else ''} are taken. Please "
-                "try again in a few minutes: your answers so far are kept."
+                f"{taken}. Please try again in a few minutes: your answers so "
+                "far are kept."
             )
         parent, child = self._context.Pipe()
         process = self._context.Process(

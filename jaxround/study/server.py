@@ -35,6 +35,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from starlette.websockets import WebSocketDisconnect
 
 from jaxround.scenario.config import load_config
+from jaxround.study.pedals import read_pedal_map
 from jaxround.study.protocol import MAX_MESSAGES_PER_S, BadMessageError, parse_message
 from jaxround.study.questions import ORDERS, QUESTION_IDS, ride_label, worded_questions
 from jaxround.study.rides import BusyError, Ride, RideManager
@@ -87,6 +88,7 @@ def create_app(
     manager = RideManager(settings, database, str(settings.policy))
     origin = leg_index(cfg, settings.ego_origin)
     destination = leg_index(cfg, settings.ego_destination)
+    pedal_map = read_pedal_map(settings.pedal_map) if settings.pedal_map else {}
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -130,6 +132,7 @@ def create_app(
             "ride_s": settings.ride_s,
             "practice_s": settings.practice_s,
             "step_s": settings.step_s,
+            "pedal_map": pedal_map,
         }
 
     @app.get("/api/roads")

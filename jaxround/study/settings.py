@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from jaxround.scenario.config import ScenarioConfig
+from jaxround.study.pedals import read_pedal_map
 
 #: The two AV shares of the paper's rides (its Tables 5-7 compare them).
 LOW_SHARE = 0.2
@@ -15,6 +16,9 @@ HIGH_SHARE = 0.8
 MAX_PARTICIPANTS_LIMIT = 32
 #: Longest step of a ride: the issue asks for at least 10 Hz.
 MAX_STEP_S = 0.1
+#: Shortest wait for the browser's start: the page counts down 2 s between
+#: the ride's "ready" and its "start".
+MIN_CONNECT_TIMEOUT_S = 3.0
 
 
 @dataclass(frozen=True)
@@ -39,7 +43,13 @@ class StudySettings:
         ego_origin: name of the leg the ego enters from.
         ego_destination: name of the leg it leaves at.
         connect_timeout_s: a ride whose browser does not start it within
-            this many seconds after it is ready is ended and reaped.
+            this many seconds after its warm-up is ended (status
+            ``not_started``) and reaped. Until then it holds its place: a
+            ride asked for and never driven keeps a place for its process's
+            start, the warm-up and this long.
+        pedal_map: a JSON file of pedal set-ups per gamepad id, used by
+            browsers that have not set up that pad themselves
+            (`jaxround.study.pedals`).
     """
 
     policy: Path
@@ -54,6 +64,7 @@ class StudySettings:
     ego_origin: str = "east"
     ego_destination: str = "south"
     connect_timeout_s: float = 60.0
+    pedal_map: Path | None = None
 
     def validate(self, cfg: ScenarioConfig) -> None:
         """Raise ValueError naming the first setting that cannot work with `cfg`."""
@@ -73,9 +84,14 @@ class StudySettings:
                 f"step: {self.step_s} s does not divide the policy's step "
                 f"{cfg.simulation.dt_s} s (simulation.dt_s of {cfg.name!r})"
             )
-        for name in ("ride_s", "practice_s", "connect_timeout_s"):
+        for name in ("ride_s", "practice_s"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name}: {getattr(self, name)}, expected > 0")
+        if self.connect_timeout_s < MIN_CONNECT_TIMEOUT_S:
+            raise ValueError(
+                f"connect timeout: {self.connect_timeout_s} s, expected at least "
+                f"{MIN_CONNECT_TIMEOUT_S} s (the page counts down before it starts)"
+            )
         if self.warmup_s < 0:
             raise ValueError(f"warm-up: {self.warmup_s} s, expected >= 0")
         if self.warmup_s + self.ride_s > cfg.demand.duration_s:
@@ -85,6 +101,8 @@ class StudySettings:
             )
         if self.seed is not None and self.seed < 0:
             raise ValueError(f"seed: {self.seed}, expected >= 0")
+        if self.pedal_map is not None:
+            read_pedal_map(self.pedal_map)
         origin = leg_index(cfg, self.ego_origin)
         if origin == leg_index(cfg, self.ego_destination):
             raise ValueError(

@@ -3,16 +3,19 @@
 // so a reload comes back to the same page (a ride cut short starts anew).
 
 import { Cockpit } from "./drive.js";
+import { PedalPanel } from "./pedal-setup.js";
+import { setStudyDefaults } from "./pedals.js";
 
 const STORE = "jaxround-study";
 const $ = (id) => document.getElementById(id);
 let state = JSON.parse(sessionStorage.getItem(STORE) || "null") || { step: "consent" };
-let study = null, roads = null, cockpit = null;
+let study = null, roads = null, cockpit = null, pedalPanel = null;
 
 function save() { sessionStorage.setItem(STORE, JSON.stringify(state)); }
 
 function show(page) {
   for (const section of document.querySelectorAll(".page")) section.hidden = section.id !== `page-${page}`;
+  if (page === "intro") pedalPanel.start(); else pedalPanel.stop();
 }
 
 async function api(method, path, body) {
@@ -140,6 +143,12 @@ async function finish() {
 
 async function main() {
   study = (await api("GET", "/api/study")).data;
+  setStudyDefaults(study.pedal_map);
+  pedalPanel = new PedalPanel({
+    box: $("pedal-box"), status: $("pedal-status"), setup: $("pedal-setup"), reset: $("pedal-reset"),
+    wizard: $("pedal-wizard"), step: $("pedal-step"), cancel: $("pedal-cancel"), note: $("pedal-note"),
+    json: $("pedal-json"),
+  }, (busy) => { $("intro-go").disabled = busy; });
   $("consent-box").onchange = () => { $("consent-go").disabled = !$("consent-box").checked; };
   $("consent-go").onclick = async () => {
     $("consent-go").disabled = true;
@@ -157,7 +166,9 @@ async function main() {
     go("practice-intro");
   };
   if (state.step === "consent" && study.places_free <= 0) {
-    $("busy-message").textContent = `All ${study.max_participants} driving places are taken.`;
+    const n = study.max_participants;
+    $("busy-message").textContent = n === 1 ? "The study's driving place is taken."
+      : `All ${n} driving places are taken.`;
     $("busy-retry").onclick = () => location.reload();
     return show("busy");
   }

@@ -8,6 +8,7 @@
 
 import { bonnet, buildWorld, carMesh, placeCar, placeDriverCamera, THREE } from "./scene.js";
 import { drawPedals, drawSpeedometer, Minimap } from "./hud.js";
+import { readPads } from "./pedals.js";
 
 const PEDAL_PRESS_START = 0.3;   // a key press puts the pedal here at once
 const PEDAL_RISE_PER_S = 1.2;    // holding it presses harder
@@ -80,7 +81,9 @@ class Ride {
     this.info = info;
     this.periodMs = stepS * 1000;
     this.keys = new Set();
-    this.pedals = { throttle: 0, brake: 0 };
+    this.keyPedals = { throttle: 0, brake: 0 };  // from the keys
+    this.padPedals = { throttle: 0, brake: 0 };  // from gamepads and wheels
+    this.pedals = { throttle: 0, brake: 0 };     // sent: the more pressed of the two
     this.sent = { throttle: 0, brake: 0, at: 0 };
     this.seq = -1;
     this.probe = null;       // {seq, t, seenAt}: the input whose latency is measured
@@ -148,7 +151,8 @@ class Ride {
     if (event.repeat) return;
     if (event.type === "keydown") this.keys.add(event.code); else this.keys.delete(event.code);
     const pedal = throttle ? "throttle" : "brake";
-    this.pedals[pedal] = event.type === "keydown" ? Math.max(this.pedals[pedal], PEDAL_PRESS_START) : 0;
+    this.keyPedals[pedal] = event.type === "keydown" ? Math.max(this.keyPedals[pedal], PEDAL_PRESS_START) : 0;
+    this.combinePedals();
     this.sendPedals(true);
   }
 
@@ -164,19 +168,21 @@ class Ride {
   updatePedals(dt) {
     const held = (set) => [...this.keys].some((k) => set.has(k));
     for (const [pedal, set] of [["throttle", THROTTLE_KEYS], ["brake", BRAKE_KEYS]]) {
-      const v = this.pedals[pedal];
-      this.pedals[pedal] = held(set) ? Math.min(1, Math.max(v, PEDAL_PRESS_START) + PEDAL_RISE_PER_S * dt)
+      const v = this.keyPedals[pedal];
+      this.keyPedals[pedal] = held(set) ? Math.min(1, Math.max(v, PEDAL_PRESS_START) + PEDAL_RISE_PER_S * dt)
         : Math.max(0, v - PEDAL_FALL_PER_S * dt);
     }
-    const pads = navigator.getGamepads ? navigator.getGamepads() : [];
-    for (const pad of pads) {
-      if (!pad || pad.mapping !== "standard") continue;
-      this.pedals.throttle = Math.max(this.pedals.throttle, pad.buttons[7]?.value || 0);
-      this.pedals.brake = Math.max(this.pedals.brake, pad.buttons[6]?.value || 0);
-    }
+    this.padPedals = readPads();  // pedals.js
+    this.combinePedals();
     const moved = Math.abs(this.pedals.throttle - this.sent.throttle) > 0.02
       || Math.abs(this.pedals.brake - this.sent.brake) > 0.02;
     if (moved && performance.now() - this.sent.at >= SEND_EVERY_MS) this.sendPedals(false);
+  }
+
+  combinePedals() {
+    for (const pedal of ["throttle", "brake"]) {
+      this.pedals[pedal] = Math.max(this.keyPedals[pedal], this.padPedals[pedal]);
+    }
   }
 
   /** The cars and the ego at the display's time, one step behind the last frame. */
