@@ -24,7 +24,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from agents import networks
+from agents.common import networks
 
 
 class Batch(NamedTuple):

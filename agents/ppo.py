@@ -35,15 +35,15 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from agents import networks
-from agents.batch import (
+from agents.common import networks
+from agents.common.batch import (
     BATCH_AXIS,
     BatchTrainer,
     agent_outcomes,
     batch_sharding,
     slot_left,
 )
-from agents.config import PPOConfig
+from agents.common.config import PPOConfig
 from agents.losses import Batch, compute_gae, masked_mean, ppo_loss
 from jaxround.state import EnvState
 
@@ -110,7 +110,7 @@ class Trainer(BatchTrainer):
     """PPO on one config: environment, network, optimiser and the pure update.
 
     Static settings live here (the roundabout batch and the loop of updates
-    in `agents.batch.BatchTrainer`); everything that changes lives in
+    in `agents.common.batch.BatchTrainer`); everything that changes lives in
     `RunnerState`.
     """
 

@@ -15,7 +15,7 @@ with `agents.ppo`, an `APGConfig` with `agents.apg`. The folder holds
 - ``checkpoints/``: Orbax checkpoints of the whole `RunnerState` every
   `checkpoint_every` updates and at the end (the last `keep_checkpoints`);
 - ``learning_curves.png``: redrawn at every checkpoint and at the end;
-- ``policy.npz`` + ``policy.json``: the final policy (`agents.export`).
+- ``policy.npz`` + ``policy.json``: the final policy (`agents.common.export`).
 
 A resumed run restarts from the last checkpoint and cuts both CSVs back to
 it, so a kill loses at most one checkpoint interval and the curve has no
@@ -39,14 +39,14 @@ import jax
 import numpy as np
 
 from agents import apg, ppo
-from agents.batch import BatchTrainer
-from agents.config import (
+from agents.common.batch import BatchTrainer
+from agents.common.config import (
     APGConfig,
     PPOConfig,
     TrainerConfig,
     trainer_config_from_dict,
 )
-from agents.export import POLICY_STEM, PolicyLayout, export_policy
+from agents.common.export import POLICY_STEM, PolicyLayout, export_policy
 from jaxround.config import ConfigError, read_yaml
 
 #: Files and folders a training run writes into its folder.

@@ -165,7 +165,7 @@ def cmd_sumo(args: argparse.Namespace) -> None:
 
 
 def cmd_run(args: argparse.Namespace) -> None:
-    from agents.config import load_ppo_config
+    from agents.common.config import load_ppo_config
     from jaxround.pipeline import TRAIN_DIR, headline, main_job
 
     cfg = load_config(args.config)
@@ -255,7 +255,7 @@ def cmd_bench(args: argparse.Namespace) -> None:
 
 
 def cmd_train(args: argparse.Namespace) -> None:
-    from agents.config import load_trainer_config
+    from agents.common.config import load_trainer_config
     from agents.training import (
         ALGORITHMS,
         RUN_FILES,
@@ -342,8 +342,8 @@ def cmd_train(args: argparse.Namespace) -> None:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> None:
-    from agents.evaluation import SUMMARY_COLUMNS, evaluate_policy, summary_rows
-    from agents.export import load_policy
+    from agents.common.evaluation import SUMMARY_COLUMNS, evaluate_policy, summary_rows
+    from agents.common.export import load_policy
     from agents.training import enable_compilation_cache
     from jaxround.report import markdown_table, write_json, write_tables
 
@@ -485,7 +485,7 @@ def cmd_calibrate(args: argparse.Namespace) -> None:
 
 
 def cmd_export(args: argparse.Namespace) -> None:
-    from agents.export import load_policy, policy_paths
+    from agents.common.export import load_policy, policy_paths
 
     src_npz, src_json = policy_paths(args.run_dir)
     if not src_npz.is_file():

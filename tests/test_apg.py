@@ -22,14 +22,14 @@ import pytest
 import yaml
 
 from agents.apg import METRICS, APGTrainer
-from agents.config import (
+from agents.common.config import (
     APGConfig,
     PPOConfig,
     apg_config_from_dict,
     load_apg_config,
     load_ppo_config,
 )
-from agents.export import load_policy, load_policy_numpy
+from agents.common.export import load_policy, load_policy_numpy
 from agents.training import compiled_trainer, csv_columns, load_run_config, read_csv
 from jaxround.cli import main
 from jaxround.config import AgentConfig, ConfigError

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from agents.export import PolicyLayout, export_policy
+from agents.common.export import PolicyLayout, export_policy
 from jaxround.config import config_from_dict
 from jaxround.drivers import parse_driver
 from jaxround.env import make

@@ -24,9 +24,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from agents import networks
-from agents.config import PPOConfig, load_ppo_config, ppo_config_from_dict
-from agents.export import (
+from agents.common import networks
+from agents.common.config import PPOConfig, load_ppo_config, ppo_config_from_dict
+from agents.common.export import (
     PolicyLayout,
     export_policy,
     load_policy,

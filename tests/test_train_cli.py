@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import yaml
 
-from agents.config import load_ppo_config
+from agents.common.config import load_ppo_config
 from agents.training import CSV_COLUMNS, read_csv, train_to_dir
 from jaxround.cli import main
 from tests.conftest import builtin_dict, quick_compilation

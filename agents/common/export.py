@@ -9,7 +9,7 @@ The ``.npz`` holds the actor's weights (no pickles); the ``.json`` its layout
 bounds of the acceleration command, the scenario it was trained on). The
 exported policy acts deterministically: the mean command clipped to the
 bounds, and the likelier lane choice. `policy_action` computes it with
-NumPy or JAX from the same code as the trained network (`agents.networks`).
+NumPy or JAX from the same code as the trained network (`agents.common.networks`).
 There is no observation normalisation: the observer scales its own features.
 """
 
@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from agents import networks
+from agents.common import networks
 
 #: Version of the file layout; a reader refuses other versions.
 FORMAT = "jaxround-policy/1"

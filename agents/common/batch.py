@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from agents import networks
+from agents.common import networks
 from jaxround.config import ConfigError
 from jaxround.env import make
 from jaxround.state import EnvParams, EnvState
@@ -130,7 +130,7 @@ class BatchTrainer:
     the runner.
 
     Attributes:
-        config: the trainer's config (`agents.config.TrainerConfig`).
+        config: the trainer's config (`agents.common.config.TrainerConfig`).
         scenario: its training scenario.
         env: the environment; `env_params` its B parameter sets, leaves (B, ...).
         obs_size: numbers per observation row, D.

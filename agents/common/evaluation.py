@@ -19,7 +19,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agents.export import PolicyLayout, check_scenario, load_policy, policy_action
+from agents.common.export import (
+    PolicyLayout,
+    check_scenario,
+    load_policy,
+    policy_action,
+)
 from jaxround.config import ScenarioConfig, config_from_dict
 from jaxround.env import make
 from jaxround.metrics import class_metrics, mean_over_runs
