@@ -33,8 +33,8 @@ from agents.common.export import (
     load_policy_numpy,
     policy_action,
 )
-from agents.losses import Batch, compute_gae, ppo_loss
 from agents.ppo import Trainer
+from agents.ppo.losses import Batch, compute_gae, ppo_loss
 from jaxround.config import ConfigError
 from tests.conftest import quick_compilation, tree_equal
 

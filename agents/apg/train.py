@@ -66,7 +66,7 @@ import optax
 from agents.common import networks
 from agents.common.batch import AgentStep, BatchTrainer, agent_outcomes
 from agents.common.config import APGConfig
-from agents.losses import masked_mean
+from agents.common.losses import masked_mean
 from jaxround.state import EnvState
 
 #: Per-update metrics, in the order of the CSV columns.

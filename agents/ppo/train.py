@@ -14,7 +14,7 @@ observation row. An update is
 
 1. a rollout: `lax.scan` over `n_steps` env steps of `n_envs` roundabouts
    (`jax.vmap(env.step)`, automatic reset), actions sampled for all M slots;
-2. GAE over (T, B, M) with the slot masks of `agents.losses`;
+2. GAE over (T, B, M) with the slot masks of `agents.ppo.losses`;
 3. `epochs` passes of `minibatches` Adam steps on the masked PPO loss. A
    minibatch is a set of whole env steps (all M slots of a roundabout at one
    time, so the centralised input sees the same roundabout it saw in the
@@ -36,15 +36,10 @@ import jax.numpy as jnp
 import optax
 
 from agents.common import networks
-from agents.common.batch import (
-    BATCH_AXIS,
-    BatchTrainer,
-    agent_outcomes,
-    batch_sharding,
-    slot_left,
-)
+from agents.common.batch import BatchTrainer, agent_outcomes
 from agents.common.config import PPOConfig
-from agents.losses import Batch, compute_gae, masked_mean, ppo_loss
+from agents.common.losses import masked_mean
+from agents.ppo.losses import Batch, compute_gae, ppo_loss
 from jaxround.state import EnvState
 
 #: Per-update metrics, in the order of the CSV columns.
@@ -273,13 +268,4 @@ def make_train(
     return Trainer(config).train
 
 
-__all__ = [
-    "BATCH_AXIS",
-    "METRICS",
-    "RunnerState",
-    "Trainer",
-    "Transition",
-    "batch_sharding",
-    "make_train",
-    "slot_left",
-]
+__all__ = ["METRICS", "RunnerState", "Trainer", "Transition", "make_train"]
