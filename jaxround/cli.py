@@ -255,13 +255,13 @@ def cmd_bench(args: argparse.Namespace) -> None:
 
 
 def cmd_train(args: argparse.Namespace) -> None:
+    from agents.common.compilation import enable_compilation_cache
     from agents.common.config import load_trainer_config
-    from agents.training import (
+    from agents.run import (
         ALGORITHMS,
         RUN_FILES,
         algorithm_of,
         clear_run,
-        enable_compilation_cache,
         load_run_config,
         train_to_dir,
     )
@@ -342,9 +342,9 @@ def cmd_train(args: argparse.Namespace) -> None:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> None:
+    from agents.common.compilation import enable_compilation_cache
     from agents.common.evaluation import SUMMARY_COLUMNS, evaluate_policy, summary_rows
     from agents.common.export import load_policy
-    from agents.training import enable_compilation_cache
     from jaxround.report import markdown_table, write_json, write_tables
 
     try:

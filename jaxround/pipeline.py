@@ -165,7 +165,8 @@ def main_job(
         The ``results.json`` object: ``{"sumo": {label: M}, "jax": {label:
         M}, ...}`` (`evaluate_everywhere`) plus the training summary.
     """
-    from agents.training import clear_run, enable_compilation_cache, train_to_dir
+    from agents.common.compilation import enable_compilation_cache
+    from agents.run import clear_run, train_to_dir
     from jaxround.schedule import make_schedule
     from sumo_export.scenario import write_scenario
 

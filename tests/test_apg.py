@@ -30,7 +30,8 @@ from agents.common.config import (
     load_ppo_config,
 )
 from agents.common.export import load_policy, load_policy_numpy
-from agents.training import compiled_trainer, csv_columns, load_run_config, read_csv
+from agents.run.algorithms import compiled_trainer, csv_columns, load_run_config
+from agents.run.metrics_csv import read_csv
 from jaxround.cli import main
 from jaxround.config import AgentConfig, ConfigError
 from tests.conftest import quick_compilation

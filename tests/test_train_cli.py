@@ -16,7 +16,9 @@ import pytest
 import yaml
 
 from agents.common.config import load_ppo_config
-from agents.training import CSV_COLUMNS, read_csv, train_to_dir
+from agents.run import train_to_dir
+from agents.run.algorithms import CSV_COLUMNS
+from agents.run.metrics_csv import read_csv
 from jaxround.cli import main
 from tests.conftest import builtin_dict, quick_compilation
 from tests.test_ppo import tiny_config
