@@ -379,9 +379,25 @@ def config_from_dict(data: Any) -> ScenarioConfig:
     return cfg
 
 
-def _build(tp: Any, value: Any, where: str) -> Any:
-    """Convert plain data into the annotated type `tp`, strictly."""
-    label = where or "config"
+Dataclass = typing.TypeVar("Dataclass")
+
+
+def dataclass_from_dict(cls: type[Dataclass], data: Any, what: str) -> Dataclass:
+    """Build the dataclass `cls` from plain data (as parsed from YAML), strictly,
+    as `config_from_dict` builds a scenario; not validated.
+
+    Every field is a dataclass, bool, int, float, str or tuple of them. A
+    missing field takes its default; an unknown key, a missing field without
+    default or a value of the wrong type raises `ConfigError` naming the
+    field, or `what` for the whole (``"PPO config: unknown key 'n_env'"``).
+    """
+    return _build(cls, data, "", what)
+
+
+def _build(tp: Any, value: Any, where: str, what: str = "config") -> Any:
+    """Convert plain data into the annotated type `tp`, strictly (`what`: the
+    name of the whole in messages)."""
+    label = where or what
     if dataclasses.is_dataclass(tp):
         if not isinstance(value, dict):
             raise ConfigError(
