@@ -32,6 +32,7 @@ from jaxround.reward import av_reward, system_reward
 from jaxround.sampling import inverse_cdf, smallest_k, sorted_uniform
 from jaxround.schedule import Schedule as NumpySchedule
 from jaxround.state import EnvParams, EnvState, Registrations, Schedule
+from jaxround.wrappers import auto_reset
 
 #: Extra seconds after the demand horizon for the last vehicles to leave.
 DEFAULT_DRAIN_S = 300.0
@@ -223,14 +224,9 @@ class RoundaboutEnv:
             (obs, state, reward, done, info); reward is float (M,) per slot.
         """
         obs, new_state, reward, done, info = self.step_env(key, state, action, params)
-        # the reset runs only when the episode ended (under `vmap` a cond
-        # computes both branches; `agents.batch.BatchTrainer.env_step` resets
-        # a whole batch only in steps where some episode ended)
-        obs, state = jax.lax.cond(
-            done,
-            lambda: self.reset(key, params),
-            lambda: (obs, new_state),
-        )
+        # the reset runs only when the episode ended (under `vmap` in every
+        # step: `jaxround.wrappers.auto_reset` on a whole batch avoids that)
+        obs, state = auto_reset(done, (obs, new_state), lambda: self.reset(key, params))
         return obs, state, reward, done, info
 
     def step_env(
