@@ -108,9 +108,9 @@ class PolicyController:
         max_slots: int = DEFAULT_SLOTS,
         strict: bool = False,
     ) -> PolicyController:
-        """A controller for an exported policy (`agents.export`); raises as
+        """A controller for an exported policy (`agents.common.export`); raises as
         `policy_observer`."""
-        from agents.export import load_policy, load_policy_numpy
+        from agents.common.export import load_policy, load_policy_numpy
 
         observer = policy_observer(policy_path)
         act = load_policy_numpy(policy_path)
@@ -265,7 +265,7 @@ def policy_observer(policy_path: str | Path) -> str:
         ValueError: the files are damaged, or the observer gives another
             number of values than the policy reads.
     """
-    from agents.export import load_policy
+    from agents.common.export import load_policy
 
     _, layout = load_policy(policy_path)
     if OBSERVATION_SIZES.get(layout.observer) != layout.obs_size:

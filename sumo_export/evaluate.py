@@ -149,7 +149,7 @@ def policy_controller(
         FileNotFoundError, ValueError: as `policy_observer`, or the policy was
             trained on other roads or drivers.
     """
-    from agents.export import check_scenario, load_policy
+    from agents.common.export import check_scenario, load_policy
 
     policy_observer(policy_path)  # fail here rather than in every worker
     check_scenario(load_policy(policy_path)[1], cfg)

@@ -87,7 +87,7 @@ def write_policy_report(
             names are replaced.
         policy_path: the policy, recorded in the JSON.
         jax_results: ``{penetration: metrics}`` of the same policy in JAX
-            (e.g. `agents.evaluation.evaluate_policy(...)["results"]["policy"]`),
+            (e.g. `agents.common.evaluation.evaluate_policy(...)["results"]["policy"]`),
             drawn beside SUMO and kept in the JSON.
 
     Returns:

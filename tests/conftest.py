@@ -80,10 +80,11 @@ def _private_compilation_cache(
     """Keep the tests' XLA cache out of the user's home, and contained to a test.
 
     The CLI and the notebooks keep compiled programs in
-    ``$XDG_CACHE_HOME/jaxround/xla`` (`agents.training.enable_compilation_cache`);
-    under the tests that folder is a temporary one (kernels and subprocesses
-    inherit it), so a run neither writes into the user's cache nor depends on
-    what an earlier run left there. A test that turns the cache on in this
+    ``$XDG_CACHE_HOME/jaxround/xla``
+    (`agents.common.compilation.enable_compilation_cache`); under the tests
+    that folder is a temporary one (kernels and subprocesses inherit it), so
+    a run neither writes into the user's cache nor depends on what an earlier
+    run left there. A test that turns the cache on in this
     process has it turned back off afterwards.
     """
     from jax.experimental.compilation_cache import compilation_cache as cc

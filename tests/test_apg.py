@@ -22,15 +22,16 @@ import pytest
 import yaml
 
 from agents.apg import METRICS, APGTrainer
-from agents.config import (
+from agents.common.config import (
     APGConfig,
     PPOConfig,
     apg_config_from_dict,
     load_apg_config,
     load_ppo_config,
 )
-from agents.export import load_policy, load_policy_numpy
-from agents.training import compiled_trainer, csv_columns, load_run_config, read_csv
+from agents.common.export import load_policy, load_policy_numpy
+from agents.run.algorithms import compiled_trainer, csv_columns, load_run_config
+from agents.run.metrics_csv import read_csv
 from jaxround.apps.cli.main import main
 from jaxround.scenario.config import AgentConfig, ConfigError
 from tests.conftest import quick_compilation

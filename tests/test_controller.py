@@ -15,8 +15,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from agents.evaluation import switched_policy
-from agents.export import PolicyLayout, export_policy, load_policy
+from agents.common.evaluation import switched_policy
+from agents.common.export import PolicyLayout, export_policy, load_policy
 from jaxround.envs.roundabout import make
 from jaxround.scenario.schedule import make_schedule
 from sumo_export.controller import PolicyController, commanded_speed
@@ -45,7 +45,7 @@ def write_standin_policy(
     seed: int = 0,
     bias: float = 0.0,
 ) -> Path:
-    """A random policy in the exported format (`agents.export`).
+    """A random policy in the exported format (`agents.common.export`).
 
     The commands stay near ``bias`` (measured -0.1 +- 0.2 m/s^2 with bias 0,
     when the AVs drive slower than their IDM on 80% of their steps: the

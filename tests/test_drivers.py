@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from agents.export import PolicyLayout, export_policy
+from agents.common.export import PolicyLayout, export_policy
 from jaxround.apps.drivers import parse_driver
 from jaxround.apps.parity import parity_report
 from jaxround.envs.rollout import run_until_left, uncontrolled_policy

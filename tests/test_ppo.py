@@ -24,17 +24,17 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from agents import networks
-from agents.config import PPOConfig, load_ppo_config, ppo_config_from_dict
-from agents.export import (
+from agents.common import networks
+from agents.common.config import PPOConfig, load_ppo_config, ppo_config_from_dict
+from agents.common.export import (
     PolicyLayout,
     export_policy,
     load_policy,
     load_policy_numpy,
     policy_action,
 )
-from agents.losses import Batch, compute_gae, ppo_loss
 from agents.ppo import Trainer
+from agents.ppo.losses import Batch, compute_gae, ppo_loss
 from jaxround.scenario.config import ConfigError
 from tests.conftest import quick_compilation, tree_equal
 

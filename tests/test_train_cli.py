@@ -15,8 +15,10 @@ import numpy as np
 import pytest
 import yaml
 
-from agents.config import load_ppo_config
-from agents.training import CSV_COLUMNS, read_csv, train_to_dir
+from agents.common.config import load_ppo_config
+from agents.run import train_to_dir
+from agents.run.algorithms import CSV_COLUMNS
+from agents.run.metrics_csv import read_csv
 from jaxround.apps.cli.main import main
 from tests.conftest import builtin_dict, quick_compilation
 from tests.test_ppo import tiny_config
@@ -83,13 +85,22 @@ def test_resume_after_a_kill(
     first_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """A run stopped after update 3 (last checkpoint: 2) and resumed ends as
-    the uninterrupted run: same curve, no duplicate rows, same policy."""
+    the uninterrupted run: same curve, no duplicate rows, same policy. A
+    caller's progress callback hears of every update, with its row."""
     cfg = tiny_config()
     out = tmp_path / "c"
     out.mkdir()
     (out / "config.yaml").write_text(cfg.to_yaml())
-    train_to_dir(cfg, out, progress=False, stop_after=3, say=lambda msg: None)
-    assert len(read_csv(out / "metrics.csv")) == 3
+    reported: list[tuple[int, dict]] = []
+    train_to_dir(
+        cfg, out, progress=False, stop_after=3, say=lambda msg: None,
+        progress_fns=[lambda update, metrics: reported.append((update, metrics))],
+    )  # fmt: skip
+    assert [update for update, _ in reported] == [1, 2, 3]
+    rows = read_csv(out / "metrics.csv")
+    for (update, metrics), row in zip(reported, rows, strict=True):
+        assert set(metrics) == {*CSV_COLUMNS[1:], "wall_s", "env_steps_per_s"}
+        assert row["env_steps"] == str(metrics["env_steps"]), update
     assert not (out / "policy.npz").exists()
     assert main(["train", "--resume", str(out), "--no-progress"]) == 0
     assert_same_run(first_run, out)

@@ -6,7 +6,7 @@ A driver spec is one of
 - a scripted controller, ``accel:A``, ``cruise:V``, ``eco[:B]``,
   ``timed[:H]`` (`jaxround.envs.scripted`);
 - an exported policy: a ``.npz``/``.json`` file, its stem or a training folder
-  (`agents.export`).
+  (`agents.common.export`).
 
 `jax_driver` gives the JAX `jaxround.envs.rollout.Policy`; `sumo_driver` the
 controller factory that drives SUMO's AVs the same way
@@ -61,7 +61,7 @@ def parse_driver(spec: str | None) -> DriverSpec:
     if is_scripted_spec(spec):
         controller_from_spec(spec)  # raises on a bad value
         return DriverSpec(spec, "scripted", "rich")
-    from agents.export import load_policy
+    from agents.common.export import load_policy
 
     try:
         _, layout = load_policy(spec)
@@ -104,8 +104,8 @@ def jax_driver(env: RoundaboutEnv, params: EnvParams, driver: DriverSpec) -> Pol
             return jnp.stack([accel, jnp.zeros_like(accel)], axis=-1)
 
         return scripted
-    from agents.evaluation import switched_policy
-    from agents.export import load_policy
+    from agents.common.evaluation import switched_policy
+    from agents.common.export import load_policy
 
     arrays, layout = load_policy(driver.spec)
     weights = {k: jnp.asarray(v) for k, v in arrays.items()}

@@ -55,7 +55,7 @@ def evaluate_everywhere(
         safety counters, and "comparison" as `compare_with_uncontrolled`;
         also written to ``out/evaluation.json``.
     """
-    from agents.evaluation import evaluate_policy
+    from agents.common.evaluation import evaluate_policy
     from sumo_export.evaluate import policy_controller, summarise_runs, sumo_runs
     from sumo_export.policy_report import write_policy_report
 
@@ -94,7 +94,7 @@ def evaluate_everywhere(
         ),
         "tables": tables,
     }
-    from agents.behaviour import plot_behaviour, policy_behaviour
+    from agents.common.behaviour import plot_behaviour, policy_behaviour
 
     behaviour = policy_behaviour(policy, cfg, penetration=1.0, seed=seeds[0])
     plot_behaviour(
@@ -159,13 +159,14 @@ def main_job(
         out: a fresh output folder.
         seeds: schedule seeds of the evaluation.
         penetrations: AV shares of the evaluation.
-        train_config: the `agents.config.PPOConfig` to train.
+        train_config: the `agents.common.config.PPOConfig` to train.
 
     Returns:
         The ``results.json`` object: ``{"sumo": {label: M}, "jax": {label:
         M}, ...}`` (`evaluate_everywhere`) plus the training summary.
     """
-    from agents.training import clear_run, enable_compilation_cache, train_to_dir
+    from agents.common.compilation import enable_compilation_cache
+    from agents.run import clear_run, train_to_dir
     from jaxround.scenario.schedule import make_schedule
     from sumo_export.scenario import write_scenario
 

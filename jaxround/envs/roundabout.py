@@ -27,6 +27,7 @@ from jaxround.envs import departures, observe, queues, schedules
 from jaxround.envs.actions import command_from_action
 from jaxround.envs.assertiveness import retuned_params
 from jaxround.envs.reward import av_reward, system_reward
+from jaxround.envs.wrappers import auto_reset
 from jaxround.scenario.config import ConfigError, ScenarioConfig, load_config
 from jaxround.scenario.schedule import Schedule as NumpySchedule
 from jaxround.sumo_files.compile import compile_network
@@ -174,14 +175,9 @@ class RoundaboutEnv:
             (obs, state, reward, done, info); reward is float (M,) per slot.
         """
         obs, new_state, reward, done, info = self.step_env(key, state, action, params)
-        # the reset runs only when the episode ended (under `vmap` a cond
-        # computes both branches; `agents.batch.BatchTrainer.env_step` resets
-        # a whole batch only in steps where some episode ended)
-        obs, state = jax.lax.cond(
-            done,
-            lambda: self.reset(key, params),
-            lambda: (obs, new_state),
-        )
+        # the reset runs only when the episode ended (under `vmap` in every
+        # step: `jaxround.envs.wrappers.auto_reset` on a whole batch avoids that)
+        obs, state = auto_reset(done, (obs, new_state), lambda: self.reset(key, params))
         return obs, state, reward, done, info
 
     def step_env(

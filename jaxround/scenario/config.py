@@ -12,17 +12,20 @@ import dataclasses
 import hashlib
 import json
 import math
-import typing
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
-import yaml
-
-
-class ConfigError(ValueError):
-    """A configuration value is missing, unknown or out of range."""
+from jaxround.scenario.loader import (
+    ConfigError,
+    check_distribution,
+    check_non_negative,
+    check_positive,
+    check_share,
+    dataclass_from_dict,
+    read_yaml,
+)
 
 
 @dataclass(frozen=True)
@@ -37,8 +40,8 @@ class LegConfig:
     def validate(self, where: str) -> None:
         if not self.name or not self.name.replace("_", "").isalnum():
             raise ConfigError(f"{where}.name: {self.name!r} must be letters, digits, _")
-        _positive(self.length_m, f"{where}.length_m")
-        _positive(self.speed_limit_mps, f"{where}.speed_limit_mps")
+        check_positive(self.length_m, f"{where}.length_m")
+        check_positive(self.speed_limit_mps, f"{where}.speed_limit_mps")
 
 
 @dataclass(frozen=True)
@@ -50,8 +53,8 @@ class NetworkConfig:
     legs: tuple[LegConfig, ...]  # in counter-clockwise order
 
     def validate(self, where: str) -> None:
-        _positive(self.ring_radius_m, f"{where}.ring_radius_m")
-        _positive(self.ring_speed_limit_mps, f"{where}.ring_speed_limit_mps")
+        check_positive(self.ring_radius_m, f"{where}.ring_radius_m")
+        check_positive(self.ring_speed_limit_mps, f"{where}.ring_speed_limit_mps")
         if not 3 <= len(self.legs) <= 6:
             raise ConfigError(f"{where}.legs: {len(self.legs)} legs, expected 3 to 6")
         for i, leg in enumerate(self.legs):
@@ -90,12 +93,12 @@ class DemandConfig:
     def validate(self, where: str, n_legs: int) -> None:
         if self.n_vehicles < 1:
             raise ConfigError(f"{where}.n_vehicles: {self.n_vehicles}, expected >= 1")
-        _positive(self.duration_s, f"{where}.duration_s")
-        _distribution(self.origin_share, f"{where}.origin_share", n_legs)
+        check_positive(self.duration_s, f"{where}.duration_s")
+        check_distribution(self.origin_share, f"{where}.origin_share", n_legs)
         if len(self.od) != n_legs:
             raise ConfigError(f"{where}.od: {len(self.od)} rows, expected {n_legs}")
         for i, row in enumerate(self.od):
-            _distribution(row, f"{where}.od[{i}]", n_legs)
+            check_distribution(row, f"{where}.od[{i}]", n_legs)
             if row[i] != 0.0:
                 raise ConfigError(
                     f"{where}.od[{i}][{i}]: {row[i]}; U-turns are not modelled, use 0"
@@ -141,7 +144,7 @@ class DriverConfig:
             "delta",
             "action_step_length",
         ):
-            _positive(getattr(self, name), f"{where}.{name}")
+            check_positive(getattr(self, name), f"{where}.{name}")
         for name in (
             "min_gap",
             "sigma",
@@ -149,7 +152,7 @@ class DriverConfig:
             "jm_timegap_minor",
             "jm_crossing_gap",
         ):
-            _non_negative(getattr(self, name), f"{where}.{name}")
+            check_non_negative(getattr(self, name), f"{where}.{name}")
         if not 0.0 <= self.impatience <= 1.0:
             raise ConfigError(f"{where}.impatience: {self.impatience}, expected [0, 1]")
         if not 0.0 <= self.sigma <= 1.0:
@@ -178,8 +181,8 @@ class SimulationConfig:
     seed: int  # seed of the departure schedule
 
     def validate(self, where: str) -> None:
-        _positive(self.dt_s, f"{where}.dt_s")
-        _unit_interval(self.penetration, f"{where}.penetration")
+        check_positive(self.dt_s, f"{where}.dt_s")
+        check_share(self.penetration, f"{where}.penetration")
         if self.seed < 0:
             raise ConfigError(f"{where}.seed: {self.seed}, expected >= 0")
 
@@ -221,10 +224,10 @@ class AgentConfig:
             raise ConfigError(
                 f"{where}.reward: {self.reward!r}, expected one of {REWARDS}"
             )
-        _unit_interval(self.share, f"{where}.share")
+        check_share(self.share, f"{where}.share")
         for name in ("speed_weight", "pollution_weight", "time_penalty",
                      "time_weight", "co2_weight"):  # fmt: skip
-            _non_negative(getattr(self, name), f"{where}.{name}")
+            check_non_negative(getattr(self, name), f"{where}.{name}")
         if self.speed_weight + self.pollution_weight <= 0:
             raise ConfigError(f"{where}: speed_weight + pollution_weight must be > 0")
 
@@ -309,9 +312,6 @@ class ScenarioConfig:
         return hashlib.sha256(blob).hexdigest()[:16]
 
 
-# --------------------------------------------------------------------------- loading
-
-
 #: Files in `configs` whose name starts so are trainer configs, not scenarios.
 TRAINER_PREFIXES = ("ppo_", "apg_")
 
@@ -343,116 +343,11 @@ def load_config(source: str | Path | None = None) -> ScenarioConfig:
     return config_from_dict(read_yaml(source, builtin_configs(), "scenario"))
 
 
-def read_yaml(source: str | Path, builtins: list[str], what: str) -> Any:
-    """The parsed YAML of a file path or of a built-in file of `configs`.
-
-    Args:
-        source: a ``.yaml`` path, or one of `builtins`.
-        builtins: names of the built-in files this kind of config may use.
-        what: the kind of config, for the error messages ("scenario").
-
-    Raises:
-        ConfigError: the file is missing, unknown or not YAML.
-    """
-    path = Path(source)
-    if path.suffix in (".yaml", ".yml") or path.exists():
-        if not path.is_file():
-            raise ConfigError(f"{what} config file {str(path)!r} does not exist")
-        text = path.read_text()
-    elif str(source) in builtins:
-        text = resources.files("configs").joinpath(f"{source}.yaml").read_text()
-    else:
-        raise ConfigError(
-            f"{source!r}: no {what} config file of that name, nor a built-in one "
-            f"({', '.join(builtins)})"
-        )
-    try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        raise ConfigError(f"{source}: not valid YAML: {err}") from None
-
-
 def config_from_dict(data: Any) -> ScenarioConfig:
     """Build and validate a `ScenarioConfig` from plain data (as parsed from YAML)."""
-    cfg = _build(ScenarioConfig, data, "")
+    cfg = dataclass_from_dict(ScenarioConfig, data, "config")
     cfg.validate()
     return cfg
-
-
-def _build(tp: Any, value: Any, where: str) -> Any:
-    """Convert plain data into the annotated type `tp`, strictly."""
-    label = where or "config"
-    if dataclasses.is_dataclass(tp):
-        if not isinstance(value, dict):
-            raise ConfigError(
-                f"{label}: expected a mapping, got {type(value).__name__}"
-            )
-        hints = typing.get_type_hints(tp)
-        fields = {f.name: f for f in dataclasses.fields(tp)}
-        unknown = sorted(set(value) - set(fields))
-        if unknown:
-            raise ConfigError(
-                f"{label}: unknown key {unknown[0]!r} (allowed: {', '.join(fields)})"
-            )
-        kwargs = {}
-        for name, f in fields.items():
-            sub = f"{where}.{name}" if where else name
-            if name not in value:
-                if f.default is dataclasses.MISSING:
-                    raise ConfigError(f"{sub}: missing")
-                continue
-            kwargs[name] = _build(hints[name], value[name], sub)
-        return tp(**kwargs)
-    origin = typing.get_origin(tp)
-    if origin is tuple:
-        if not isinstance(value, list | tuple):
-            raise ConfigError(f"{label}: expected a list, got {type(value).__name__}")
-        (item_tp, _) = typing.get_args(tp)
-        return tuple(_build(item_tp, v, f"{label}[{i}]") for i, v in enumerate(value))
-    if tp is float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ConfigError(f"{label}: expected a number, got {value!r}")
-        if not math.isfinite(value):
-            raise ConfigError(f"{label}: expected a finite number, got {value!r}")
-        return float(value)
-    if tp is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{label}: expected an integer, got {value!r}")
-        return value
-    if tp is bool:
-        if not isinstance(value, bool):
-            raise ConfigError(f"{label}: expected true or false, got {value!r}")
-        return value
-    if tp is str:
-        if not isinstance(value, str):
-            raise ConfigError(f"{label}: expected a string, got {value!r}")
-        return value
-    raise TypeError(f"unsupported config type {tp!r}")  # pragma: no cover
-
-
-def _positive(x: float, where: str) -> None:
-    if not x > 0:
-        raise ConfigError(f"{where}: {x}, expected > 0")
-
-
-def _non_negative(x: float, where: str) -> None:
-    if not x >= 0:
-        raise ConfigError(f"{where}: {x}, expected >= 0")
-
-
-def _unit_interval(x: float, where: str) -> None:
-    if not 0.0 <= x <= 1.0:
-        raise ConfigError(f"{where}: {x}, expected a share in [0, 1]")
-
-
-def _distribution(row: tuple[float, ...], where: str, n: int) -> None:
-    if len(row) != n:
-        raise ConfigError(f"{where}: {len(row)} entries, expected {n} (one per leg)")
-    for j, x in enumerate(row):
-        if x < 0:
-            raise ConfigError(f"{where}[{j}]: {x}, expected >= 0")
-    if abs(sum(row) - 1.0) > 1e-6:
-        raise ConfigError(f"{where}: sums to {sum(row):.6g}, expected 1")
 
 
 __all__ = [

@@ -48,7 +48,7 @@ def _seconds(text: str) -> float:
 
 
 def cmd_serve(args: argparse.Namespace) -> None:
-    from agents.export import check_scenario, load_policy
+    from agents.common.export import check_scenario, load_policy
     from jaxround.scenario.config import load_config
     from jaxround.study.storage import StudyDatabase
     from sumo_export.controller import policy_observer

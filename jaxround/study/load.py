@@ -50,7 +50,7 @@ def write_standin_policy(folder: Path, cfg: ScenarioConfig) -> Path:
     """A random policy in the exported format that always asks for full
     acceleration (the AVs' IDM caps it), with the layout `jaxround train`
     gives by default (configs/ppo_milan.yaml: two tanh layers of 32)."""
-    from agents.export import PolicyLayout, export_policy
+    from agents.common.export import PolicyLayout, export_policy
     from jaxround.envs.observe import OBSERVATION_SIZES
 
     observer = cfg.agent.observer

@@ -45,7 +45,7 @@ def evaluate_in_sumo(
 
 
 def cmd_run(args: argparse.Namespace) -> None:
-    from agents.config import load_ppo_config
+    from agents.common.config import load_ppo_config
     from jaxround.apps.pipeline import TRAIN_DIR, headline, main_job
 
     cfg = load_config(args.config)
@@ -79,13 +79,13 @@ def cmd_run(args: argparse.Namespace) -> None:
 
 
 def cmd_train(args: argparse.Namespace) -> None:
-    from agents.config import load_trainer_config
-    from agents.training import (
+    from agents.common.compilation import enable_compilation_cache
+    from agents.common.config import load_trainer_config
+    from agents.run import (
         ALGORITHMS,
         RUN_FILES,
         algorithm_of,
         clear_run,
-        enable_compilation_cache,
         load_run_config,
         train_to_dir,
     )
@@ -166,9 +166,9 @@ def cmd_train(args: argparse.Namespace) -> None:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> None:
-    from agents.evaluation import SUMMARY_COLUMNS, evaluate_policy, summary_rows
-    from agents.export import load_policy
-    from agents.training import enable_compilation_cache
+    from agents.common.compilation import enable_compilation_cache
+    from agents.common.evaluation import SUMMARY_COLUMNS, evaluate_policy, summary_rows
+    from agents.common.export import load_policy
     from jaxround.analysis.report import markdown_table, write_json, write_tables
 
     try:
@@ -217,7 +217,7 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
 
 
 def cmd_export(args: argparse.Namespace) -> None:
-    from agents.export import load_policy, policy_paths
+    from agents.common.export import load_policy, policy_paths
 
     src_npz, src_json = policy_paths(args.run_dir)
     if not src_npz.is_file():

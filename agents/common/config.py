@@ -15,8 +15,6 @@ fields and their checks (`TrainerConfig`).
 from __future__ import annotations
 
 import dataclasses
-import math
-import typing
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -28,12 +26,11 @@ from jaxround.scenario.config import (
     ACTIONS,
     OBSERVERS,
     REWARDS,
-    ConfigError,
     ScenarioConfig,
     config_from_dict,
-    read_yaml,
 )
 from jaxround.scenario.config import load_config as load_scenario
+from jaxround.scenario.loader import ConfigError, dataclass_from_dict, read_yaml
 
 #: Activations of the policy and value MLPs.
 ACTIVATIONS = ("tanh", "relu")
@@ -331,51 +328,11 @@ def apg_config_from_dict(data: Any) -> APGConfig:
 
 def trainer_config_from_dict(cls: type[Config], data: Any) -> Config:
     """Build and validate a config of class `cls` from plain data (strict keys
-    and types; missing keys take defaults)."""
-    kind = cls.KIND
-    if not isinstance(data, dict):
-        raise ConfigError(
-            f"{kind} config: expected a mapping, got {type(data).__name__}"
-        )
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - set(fields))
-    if unknown:
-        raise ConfigError(
-            f"{kind} config: unknown key {unknown[0]!r} (allowed: {', '.join(fields)})"
-        )
-    hints = typing.get_type_hints(cls)
-    kwargs = {name: _convert(hints[name], v, name) for name, v in data.items()}
-    cfg = cls(**kwargs)
+    and types; missing keys take defaults), with the scenario's loader
+    (`jaxround.scenario.loader.dataclass_from_dict`)."""
+    cfg = dataclass_from_dict(cls, data, f"{cls.KIND} config")
     cfg.validate()
     return cfg
-
-
-def _convert(tp: Any, value: Any, where: str) -> Any:
-    """`value` as the annotated type `tp` (bool, int, float, str, tuple[...])."""
-    if typing.get_origin(tp) is tuple:
-        if not isinstance(value, list | tuple):
-            raise ConfigError(f"{where}: expected a list, got {value!r}")
-        item_tp = typing.get_args(tp)[0]
-        return tuple(_convert(item_tp, v, f"{where}[{i}]") for i, v in enumerate(value))
-    if tp is bool:
-        if not isinstance(value, bool):
-            raise ConfigError(f"{where}: expected true or false, got {value!r}")
-        return value
-    if tp is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{where}: expected an integer, got {value!r}")
-        return value
-    if tp is float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ConfigError(f"{where}: expected a number, got {value!r}")
-        if not math.isfinite(value):
-            raise ConfigError(f"{where}: expected a finite number, got {value!r}")
-        return float(value)
-    if tp is str:
-        if not isinstance(value, str):
-            raise ConfigError(f"{where}: expected a string, got {value!r}")
-        return value
-    raise TypeError(f"unsupported config type {tp!r}")  # pragma: no cover
 
 
 def _require(ok: bool, where: str, value: Any, expected: str) -> None:

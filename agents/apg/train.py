@@ -10,8 +10,8 @@
 
 Brax's APG (and SHAC's actor without its critic): the policy is
 deterministic, the mean command of the shared actor clipped to the AV's
-bounds (`agents.networks.deterministic_action`, exactly what
-`agents.export` writes and the SUMO controller runs; the critic and the
+bounds (`agents.common.networks.deterministic_action`, exactly what
+`agents.common.export` writes and the SUMO controller runs; the critic and the
 log-std are carried along unused), and its gradient is the derivative of
 the AVs' reward through the environment itself: `env.step_env` is a pure
 JAX function of the action. An update
@@ -30,7 +30,7 @@ The dynamics trained on are relaxed: `relax_temperature` is written into
 every roundabout's `EnvParams`, above 0 the hard decisions (yielding at the
 entry, halting, arrival) are smooth so that more of the gradient gets
 through (`jaxround.core.relax`). A trained policy is evaluated on the exact,
-SUMO-parity dynamics (temperature 0: `agents.evaluation`).
+SUMO-parity dynamics (temperature 0: `agents.common.evaluation`).
 
 Why long rollouts do not give NaN or exploding gradients here:
 
@@ -63,10 +63,10 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from agents import networks
-from agents.batch import AgentStep, BatchTrainer, agent_outcomes
-from agents.config import APGConfig
-from agents.losses import masked_mean
+from agents.common import networks
+from agents.common.batch import AgentStep, BatchTrainer, agent_outcomes
+from agents.common.config import APGConfig
+from agents.common.losses import masked_mean
 from jaxround.core.state import EnvState
 
 #: Per-update metrics, in the order of the CSV columns.
@@ -88,7 +88,7 @@ class RunnerState(NamedTuple):
     """Everything a run carries from one update to the next (a checkpoint).
 
     Attributes:
-        params: network parameters (`agents.networks.ActorCritic`).
+        params: network parameters (`agents.common.networks.ActorCritic`).
         opt_state: Adam state (holds the learning-rate schedule's count).
         env_state: `EnvState` of the B roundabouts, leaves (B, ...).
         obs: float (B, M, D) their current observations.
@@ -123,7 +123,7 @@ class APGTrainer(BatchTrainer):
     """APG on one config: environment batch, network, optimiser, the pure update.
 
     Static settings live here (the roundabout batch and the loop of updates
-    in `agents.batch.BatchTrainer`); everything that changes in `RunnerState`.
+    in `agents.common.batch.BatchTrainer`); everything that changes in `RunnerState`.
     """
 
     config: APGConfig

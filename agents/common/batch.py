@@ -26,9 +26,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from agents import networks
+from agents.common import networks
 from jaxround.core.state import EnvParams, EnvState
 from jaxround.envs.roundabout import make
+from jaxround.envs.wrappers import auto_reset
 from jaxround.scenario.config import ConfigError
 
 #: Name of the mesh axis the roundabout batch is split over.
@@ -130,7 +131,7 @@ class BatchTrainer:
     the runner.
 
     Attributes:
-        config: the trainer's config (`agents.config.TrainerConfig`).
+        config: the trainer's config (`agents.common.config.TrainerConfig`).
         scenario: its training scenario.
         env: the environment; `env_params` its B parameter sets, leaves (B, ...).
         obs_size: numbers per observation row, D.
@@ -173,28 +174,26 @@ class BatchTrainer:
     ) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, dict[str, Any]]:
         """`jax.vmap(env.step)` over the B roundabouts, resetting only when needed.
 
-        The same as the environment's own automatic reset (`step_env`, then
-        `reset` with the same key where done), but the reset is computed only
-        in steps where some episode ended: the B episodes start together and
-        have one length, so that is one step in `episode_steps`. (Under an
-        outer `vmap`, over seeds, `lax.cond` computes both branches; the
-        result is the same.)
+        The environment's own automatic reset (`jaxround.envs.wrappers.auto_reset`:
+        `step_env`, then `reset` with the same key where done) applied to the
+        whole batch, so that the reset is computed only in steps where some
+        episode ended: the B episodes start together and have one length, so
+        that is one step in `episode_steps`.
+
+        Args:
+            keys: PRNG keys (B, 2), one per roundabout.
+            state: the B states, leaves (B, ...).
+            action: float (B, M, 2) per slot.
+
+        Returns:
+            (obs float (B, M, D), states, reward float (B, M), done bool (B,),
+            info), as `jax.vmap(env.step)`.
         """
-        obs, new_state, reward, done, info = self._env_step(
+        obs, state, reward, done, info = self._env_step(
             keys, state, action, self.env_params
         )
-
-        def with_reset(carry: tuple[jax.Array, EnvState]):
-            fresh = self._env_reset(keys, self.env_params)
-
-            def pick(reset: jax.Array, stepped: jax.Array) -> jax.Array:
-                where = jnp.reshape(done, done.shape + (1,) * (stepped.ndim - 1))
-                return jnp.where(where, reset, stepped)
-
-            return jax.tree.map(pick, fresh, carry)
-
-        obs, state = jax.lax.cond(
-            jnp.any(done), with_reset, lambda carry: carry, (obs, new_state)
+        obs, state = auto_reset(
+            done, (obs, state), lambda: self._env_reset(keys, self.env_params)
         )
         return obs, state, reward, done, info
 

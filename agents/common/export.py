@@ -9,7 +9,7 @@ The ``.npz`` holds the actor's weights (no pickles); the ``.json`` its layout
 bounds of the acceleration command, the scenario it was trained on). The
 exported policy acts deterministically: the mean command clipped to the
 bounds, and the likelier lane choice. `policy_action` computes it with
-NumPy or JAX from the same code as the trained network (`agents.networks`).
+NumPy or JAX from the same code as the trained network (`agents.common.networks`).
 There is no observation normalisation: the observer scales its own features.
 """
 
@@ -22,11 +22,15 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from agents import networks
+from agents.common import networks
+
+if TYPE_CHECKING:
+    from agents.common.batch import BatchTrainer
+    from jaxround.scenario.config import ScenarioConfig
 
 #: Version of the file layout; a reader refuses other versions.
 FORMAT = "jaxround-policy/1"
@@ -62,6 +66,32 @@ class PolicyLayout:
         shapes["lane_logits/bias"] = (networks.N_LANE_CHOICES,)
         shapes["log_std"] = ()
         return shapes
+
+
+def policy_layout(trainer: BatchTrainer) -> PolicyLayout:
+    """The exported layout of a trainer's network."""
+    cfg, scenario = trainer.config, trainer.scenario
+    return PolicyLayout(
+        observer=scenario.agent.observer,
+        obs_size=trainer.obs_size,
+        hidden=tuple(cfg.hidden),
+        activation=cfg.activation,
+        centralised=cfg.centralised,
+        accel_bounds=action_bounds(scenario),
+        action=scenario.agent.action,
+        scenario=cfg.scenario,
+        scenario_fingerprint=scenario.roads_and_drivers_fingerprint(),
+    )
+
+
+def action_bounds(scenario: ScenarioConfig) -> tuple[float, float]:
+    """The exported policy's action bounds: the AV's [-decel, accel] for a
+    speed command, `jaxround.envs.assertiveness.RAW_BOUND` for assertiveness."""
+    if scenario.agent.action == "assertiveness":
+        from jaxround.envs.assertiveness import RAW_BOUND
+
+        return (-RAW_BOUND, RAW_BOUND)
+    return (-scenario.drivers.av.decel, scenario.drivers.av.accel)
 
 
 def policy_paths(path: str | Path) -> tuple[Path, Path]:
@@ -230,9 +260,11 @@ __all__ = [
     "check_scenario",
     "POLICY_STEM",
     "PolicyLayout",
+    "action_bounds",
     "export_policy",
     "load_policy",
     "load_policy_numpy",
     "policy_action",
+    "policy_layout",
     "policy_paths",
 ]

@@ -14,7 +14,7 @@ observation row. An update is
 
 1. a rollout: `lax.scan` over `n_steps` env steps of `n_envs` roundabouts
    (`jax.vmap(env.step)`, automatic reset), actions sampled for all M slots;
-2. GAE over (T, B, M) with the slot masks of `agents.losses`;
+2. GAE over (T, B, M) with the slot masks of `agents.ppo.losses`;
 3. `epochs` passes of `minibatches` Adam steps on the masked PPO loss. A
    minibatch is a set of whole env steps (all M slots of a roundabout at one
    time, so the centralised input sees the same roundabout it saw in the
@@ -35,16 +35,11 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from agents import networks
-from agents.batch import (
-    BATCH_AXIS,
-    BatchTrainer,
-    agent_outcomes,
-    batch_sharding,
-    slot_left,
-)
-from agents.config import PPOConfig
-from agents.losses import Batch, compute_gae, masked_mean, ppo_loss
+from agents.common import networks
+from agents.common.batch import BatchTrainer, agent_outcomes
+from agents.common.config import PPOConfig
+from agents.common.losses import masked_mean
+from agents.ppo.losses import Batch, compute_gae, ppo_loss
 from jaxround.core.state import EnvState
 
 #: Per-update metrics, in the order of the CSV columns.
@@ -110,7 +105,7 @@ class Trainer(BatchTrainer):
     """PPO on one config: environment, network, optimiser and the pure update.
 
     Static settings live here (the roundabout batch and the loop of updates
-    in `agents.batch.BatchTrainer`); everything that changes lives in
+    in `agents.common.batch.BatchTrainer`); everything that changes lives in
     `RunnerState`.
     """
 
@@ -273,13 +268,4 @@ def make_train(
     return Trainer(config).train
 
 
-__all__ = [
-    "BATCH_AXIS",
-    "METRICS",
-    "RunnerState",
-    "Trainer",
-    "Transition",
-    "batch_sharding",
-    "make_train",
-    "slot_left",
-]
+__all__ = ["METRICS", "RunnerState", "Trainer", "Transition", "make_train"]

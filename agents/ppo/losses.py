@@ -24,7 +24,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from agents import networks
+from agents.common import networks
+from agents.common.losses import masked_mean
 
 
 class Batch(NamedTuple):
@@ -51,12 +52,6 @@ class Batch(NamedTuple):
     value: jax.Array
     advantage: jax.Array
     target: jax.Array
-
-
-def masked_mean(x: jax.Array, mask: jax.Array) -> jax.Array:
-    """Mean of `x` over `mask` (0 when the mask is empty); masked values may be nan."""
-    total = jnp.sum(jnp.where(mask, x, 0.0))
-    return total / jnp.maximum(jnp.sum(mask), 1)
 
 
 def compute_gae(
@@ -163,4 +158,4 @@ def ppo_loss(
     return loss, aux
 
 
-__all__ = ["Batch", "compute_gae", "masked_mean", "ppo_loss"]
+__all__ = ["Batch", "compute_gae", "ppo_loss"]

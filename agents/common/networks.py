@@ -10,7 +10,7 @@ One MLP reads one slot's observation row and gives
 The forward pass is a pure function of ``(params, obs (M, D), mask (M,))``:
 `policy_inputs` builds each row's input (optionally with the mean of the
 other vehicles' rows), written once for both NumPy and JAX so the exported
-policy (`agents.export`) computes exactly what was trained.
+policy (`agents.common.export`) computes exactly what was trained.
 """
 
 from __future__ import annotations

@@ -17,8 +17,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agents.evaluation import switched_policy, with_observer
-from agents.export import load_policy
+from agents.common.evaluation import switched_policy, with_observer
+from agents.common.export import load_policy
 from jaxround.envs.assertiveness import (
     assertive_impatience,
     assertive_tau,

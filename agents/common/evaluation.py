@@ -19,7 +19,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agents.export import PolicyLayout, check_scenario, load_policy, policy_action
+from agents.common.export import (
+    PolicyLayout,
+    check_scenario,
+    load_policy,
+    policy_action,
+)
 from jaxround.analysis.metrics import class_metrics, mean_over_runs
 from jaxround.core.state import EnvState
 from jaxround.envs.rollout import NO_COMMAND, Policy, run_episode, vehicle_records
