@@ -21,7 +21,7 @@ lane) is one masked minimum over the slots, (M, M), per question, without a
 lane axis.
 
 Each function returns what the all-pairs search it replaces returned (the
-tests keep those in ``tests/allpairs.py`` and compare), with one reservation:
+tests keep those in ``tests/unit/allpairs.py`` and compare), with one reservation:
 where two candidates at *different* positions give the same rounded float
 distance, the all-pairs search took the lower slot and these take the nearer
 one (the distance itself is the same).

@@ -27,7 +27,7 @@ from jaxround.study.storage import (
     UnknownParticipantError,
 )
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 QUESTIONS = ("smoothness", "safety", "preference")
 
 

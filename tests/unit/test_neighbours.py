@@ -20,7 +20,7 @@ from jaxround.core.geometry import back_projection, leaders, locate, project
 from jaxround.core.link_leaders import link_leader
 from jaxround.envs import observe
 from jaxround.envs.roundabout import make
-from tests import allpairs
+from tests.unit import allpairs
 
 M = 24
 STATES = 48  # per network, vmapped

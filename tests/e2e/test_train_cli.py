@@ -21,7 +21,7 @@ from agents.run.algorithms import CSV_COLUMNS
 from agents.run.metrics_csv import read_csv
 from jaxround.apps.cli.main import main
 from tests.conftest import builtin_dict, quick_compilation
-from tests.test_ppo import tiny_config
+from tests.unit.test_ppo import tiny_config
 
 
 @pytest.fixture(scope="module", autouse=True)

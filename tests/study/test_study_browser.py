@@ -21,7 +21,7 @@ import pytest
 
 from jaxround.apps.cli.main import main
 from jaxround.study.storage import StudyDatabase
-from tests.study_browser import chromium_driver, study_server
+from tests.study.study_browser import chromium_driver, study_server
 
 pytestmark = pytest.mark.sumo
 

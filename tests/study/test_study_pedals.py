@@ -24,7 +24,7 @@ from jaxround.scenario.config import load_config
 from jaxround.study.load import write_standin_policy
 from jaxround.study.pedals import read_pedal_map
 from jaxround.study.storage import StudyDatabase
-from tests.study_browser import chromium_driver, study_server
+from tests.study.study_browser import chromium_driver, study_server
 
 WHEEL = "Fake Racing Wheel (Vendor: 1234 Product: 5678)"
 LAB_PEDALS = "Lab Pedals (Vendor: abcd Product: 0001)"

@@ -12,7 +12,7 @@ from sumo_export.controller import PolicyControllerFactory
 from sumo_export.evaluate import sumo_policy_sweep
 from sumo_export.policy_report import CONTROLLER_COLUMNS, write_policy_report
 from tests.conftest import small_config
-from tests.test_controller import write_standin_policy
+from tests.sumo.test_controller import write_standin_policy
 
 
 def test_a_policy_of_another_observer_size_is_refused(tmp_path: Path) -> None:

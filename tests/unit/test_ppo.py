@@ -38,7 +38,7 @@ from agents.ppo.losses import Batch, compute_gae, ppo_loss
 from jaxround.scenario.config import ConfigError
 from tests.conftest import quick_compilation, tree_equal
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 #: The tiny training run of the tests: milan's network, 9 vehicles in 20 s,
 #: 10 s episodes (a reset every 20 steps), 8 slots, 4 roundabouts, 4 updates.
 TINY = dict(
@@ -413,7 +413,7 @@ import jax, numpy as np
 from agents.ppo import Trainer
 from jaxround.scenario.config import ConfigError
 from tests.conftest import tree_equal
-from tests.test_ppo import tiny_config
+from tests.unit.test_ppo import tiny_config
 
 assert jax.device_count() == 2, jax.devices()
 try:
