@@ -12,6 +12,7 @@ import dataclasses
 import hashlib
 import json
 import math
+import types
 import typing
 from dataclasses import dataclass
 from importlib import resources
@@ -176,12 +177,19 @@ class SimulationConfig:
     dt_s: float  # simulation step length, s
     penetration: float  # share of AVs, 0..1
     seed: int  # seed of the departure schedule
+    # JAX vehicle slots M; null: what the road holds (`jaxround.capacity`)
+    max_vehicles: int | None = None
 
     def validate(self, where: str) -> None:
         _positive(self.dt_s, f"{where}.dt_s")
         _unit_interval(self.penetration, f"{where}.penetration")
         if self.seed < 0:
             raise ConfigError(f"{where}.seed: {self.seed}, expected >= 0")
+        if self.max_vehicles is not None and self.max_vehicles < 1:
+            raise ConfigError(
+                f"{where}.max_vehicles: {self.max_vehicles}, expected >= 1, or "
+                "null for what the road holds"
+            )
 
 
 #: Observers of the AV policy (`jaxround.observe`).
@@ -404,6 +412,9 @@ def _build(tp: Any, value: Any, where: str) -> Any:
             kwargs[name] = _build(hints[name], value[name], sub)
         return tp(**kwargs)
     origin = typing.get_origin(tp)
+    if origin is types.UnionType:  # `X | None`: null, or an X
+        (item_tp,) = [t for t in typing.get_args(tp) if t is not type(None)]
+        return None if value is None else _build(item_tp, value, where)
     if origin is tuple:
         if not isinstance(value, list | tuple):
             raise ConfigError(f"{label}: expected a list, got {type(value).__name__}")
