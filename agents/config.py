@@ -15,7 +15,6 @@ fields and their checks (`TrainerConfig`).
 from __future__ import annotations
 
 import dataclasses
-import math
 import typing
 from dataclasses import dataclass
 from importlib import resources
@@ -32,6 +31,7 @@ from jaxround.config import (
     ScenarioConfig,
     config_from_dict,
     read_yaml,
+    typed_value,
 )
 from jaxround.config import load_config as load_scenario
 
@@ -65,9 +65,11 @@ class TrainerConfig:
         c: Any = self
         for name in ("demand_window_s", "episode_s"):
             _require(getattr(c, name) > 0, name, getattr(c, name), "> 0")
-        for name in ("max_vehicles", "n_envs", "total_env_steps",
+        for name in ("n_envs", "total_env_steps",
                      "checkpoint_every", "keep_checkpoints"):  # fmt: skip
             _require(getattr(c, name) >= 1, name, getattr(c, name), ">= 1")
+        m = c.max_vehicles
+        _require(m is None or m >= 1, "max_vehicles", m, ">= 1, or null: the road's")
         _require(c.seed >= 0, "seed", c.seed, ">= 0")
         if not c.penetrations:
             raise ConfigError("penetrations: empty, expected at least one share")
@@ -119,6 +121,17 @@ class TrainerConfig:
         d["agent"].update({k: v for k in AGENT_FIELDS if (v := getattr(self, k))})
         return config_from_dict(d) if d != cfg.to_dict() else cfg
 
+    def slots(self) -> int:
+        """The training environment's vehicle slots M: `max_vehicles`, else
+        the scenario's ``simulation.max_vehicles``, else what its road holds
+        (`jaxround.capacity`; compiles the network)."""
+        c: Any = self
+        if c.max_vehicles is not None:
+            return c.max_vehicles
+        from jaxround.env import make
+
+        return make(self.training_scenario())[0].max_vehicles
+
     def training_scenario(self) -> ScenarioConfig:
         """The scenario cut to `demand_window_s` at its own rate of vehicles.
 
@@ -143,7 +156,7 @@ class PPOConfig(TrainerConfig):
     scenario: str = "milan"  # built-in scenario name or YAML path (network, drivers)
     demand_window_s: float = 300.0  # training demand horizon, s; the scenario's rate
     episode_s: float = 360.0  # training episode length, s (window plus a drain)
-    max_vehicles: int = 32  # vehicle slots M per roundabout
+    max_vehicles: int | None = None  # slots M; None: the scenario's (the road's)
     penetrations: tuple[float, ...] = (1.0,)  # AV shares; env i uses entry i % len
     observer: str = ""  # the AVs' observer; empty: the scenario's agent.observer
     action: str = ""  # what the AVs' action means; empty: the scenario's agent.action
@@ -187,7 +200,7 @@ class PPOConfig(TrainerConfig):
     @property
     def minibatch_size(self) -> int:
         """Slot samples per minibatch (agents and masked-out slots together)."""
-        return self.minibatch_env_steps * self.max_vehicles
+        return self.minibatch_env_steps * self.slots()
 
     # ------------------------------------------------------------ checks
 
@@ -219,7 +232,7 @@ class APGConfig(TrainerConfig):
     scenario: str = "milan"  # built-in scenario name or YAML path (network, drivers)
     demand_window_s: float = 300.0  # training demand horizon, s; the scenario's rate
     episode_s: float = 360.0  # training episode length, s (window plus a drain)
-    max_vehicles: int = 32  # vehicle slots M per roundabout
+    max_vehicles: int | None = None  # slots M; None: the scenario's (the road's)
     penetrations: tuple[float, ...] = (1.0,)  # AV shares; env i uses entry i % len
     observer: str = ""  # the AVs' observer; empty: the scenario's agent.observer
     action: str = ""  # what the AVs' action means; empty: the scenario's agent.action
@@ -344,38 +357,10 @@ def trainer_config_from_dict(cls: type[Config], data: Any) -> Config:
             f"{kind} config: unknown key {unknown[0]!r} (allowed: {', '.join(fields)})"
         )
     hints = typing.get_type_hints(cls)
-    kwargs = {name: _convert(hints[name], v, name) for name, v in data.items()}
+    kwargs = {name: typed_value(hints[name], v, name) for name, v in data.items()}
     cfg = cls(**kwargs)
     cfg.validate()
     return cfg
-
-
-def _convert(tp: Any, value: Any, where: str) -> Any:
-    """`value` as the annotated type `tp` (bool, int, float, str, tuple[...])."""
-    if typing.get_origin(tp) is tuple:
-        if not isinstance(value, list | tuple):
-            raise ConfigError(f"{where}: expected a list, got {value!r}")
-        item_tp = typing.get_args(tp)[0]
-        return tuple(_convert(item_tp, v, f"{where}[{i}]") for i, v in enumerate(value))
-    if tp is bool:
-        if not isinstance(value, bool):
-            raise ConfigError(f"{where}: expected true or false, got {value!r}")
-        return value
-    if tp is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{where}: expected an integer, got {value!r}")
-        return value
-    if tp is float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ConfigError(f"{where}: expected a number, got {value!r}")
-        if not math.isfinite(value):
-            raise ConfigError(f"{where}: expected a finite number, got {value!r}")
-        return float(value)
-    if tp is str:
-        if not isinstance(value, str):
-            raise ConfigError(f"{where}: expected a string, got {value!r}")
-        return value
-    raise TypeError(f"unsupported config type {tp!r}")  # pragma: no cover
 
 
 def _require(ok: bool, where: str, value: Any, expected: str) -> None:

@@ -382,13 +382,14 @@ def read_yaml(source: str | Path, builtins: list[str], what: str) -> Any:
 
 def config_from_dict(data: Any) -> ScenarioConfig:
     """Build and validate a `ScenarioConfig` from plain data (as parsed from YAML)."""
-    cfg = _build(ScenarioConfig, data, "")
+    cfg = typed_value(ScenarioConfig, data, "")
     cfg.validate()
     return cfg
 
 
-def _build(tp: Any, value: Any, where: str) -> Any:
-    """Convert plain data into the annotated type `tp`, strictly."""
+def typed_value(tp: Any, value: Any, where: str) -> Any:
+    """Convert plain data into the annotated type `tp`, strictly; a wrong
+    value raises `ConfigError` naming `where`."""
     label = where or "config"
     if dataclasses.is_dataclass(tp):
         if not isinstance(value, dict):
@@ -409,17 +410,19 @@ def _build(tp: Any, value: Any, where: str) -> Any:
                 if f.default is dataclasses.MISSING:
                     raise ConfigError(f"{sub}: missing")
                 continue
-            kwargs[name] = _build(hints[name], value[name], sub)
+            kwargs[name] = typed_value(hints[name], value[name], sub)
         return tp(**kwargs)
     origin = typing.get_origin(tp)
     if origin is types.UnionType:  # `X | None`: null, or an X
         (item_tp,) = [t for t in typing.get_args(tp) if t is not type(None)]
-        return None if value is None else _build(item_tp, value, where)
+        return None if value is None else typed_value(item_tp, value, where)
     if origin is tuple:
         if not isinstance(value, list | tuple):
             raise ConfigError(f"{label}: expected a list, got {type(value).__name__}")
         (item_tp, _) = typing.get_args(tp)
-        return tuple(_build(item_tp, v, f"{label}[{i}]") for i, v in enumerate(value))
+        return tuple(
+            typed_value(item_tp, v, f"{label}[{i}]") for i, v in enumerate(value)
+        )
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise ConfigError(f"{label}: expected a number, got {value!r}")
@@ -479,4 +482,5 @@ __all__ = [
     "builtin_configs",
     "config_from_dict",
     "load_config",
+    "typed_value",
 ]
