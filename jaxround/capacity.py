@@ -18,6 +18,9 @@ the run departs from SUMO's. `overflow_warning` says so.
 
 from __future__ import annotations
 
+import sys
+from typing import Any
+
 import numpy as np
 
 from jaxround.config import ScenarioConfig
@@ -79,7 +82,9 @@ def resolve_max_vehicles(
     return int(max_vehicles)
 
 
-def overflow_warning(overflow: int, max_vehicles: int, what: str = "JAX") -> str | None:
+def overflow_warning(
+    overflow: int, max_vehicles: int | None, what: str = "JAX"
+) -> str | None:
     """A one-line warning when insertions waited for a free slot, else None.
 
     Args:
@@ -96,3 +101,14 @@ def overflow_warning(overflow: int, max_vehicles: int, what: str = "JAX") -> str
         "runs differ from SUMO's; raise --max-vehicles or the config's "
         "max_vehicles (simulation.max_vehicles: null gives what the road holds)"
     )
+
+
+def warn_slot_overflow(result: dict[str, Any], what: str) -> None:
+    """Print `overflow_warning` to stderr for a JSON result that carries
+    ``jax_slot_overflow`` and ``max_vehicles`` (parity, evaluation, bench);
+    nothing when it has none."""
+    text = overflow_warning(
+        int(result.get("jax_slot_overflow") or 0), result.get("max_vehicles"), what
+    )
+    if text:
+        print(text, file=sys.stderr)

@@ -12,6 +12,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from jaxround.capacity import warn_slot_overflow
 from jaxround.config import ConfigError, ScenarioConfig, load_config
 from jaxround.pipeline import QUICK_TRAIN_STEPS
 from jaxround.report import percent_label
@@ -190,6 +191,7 @@ def cmd_run(args: argparse.Namespace) -> None:
         cfg, out, seeds, penetrations, train_cfg, workers=args.workers,
         progress=not args.no_progress, say=say,
     )  # fmt: skip
+    warn_slot_overflow(result, "run (JAX evaluation)")
     print(result["tables"])
     print(headline(result))
     print(
@@ -206,10 +208,11 @@ def cmd_parity(args: argparse.Namespace) -> None:
         report = parity_report(
             cfg, seeds_of(cfg, args.seeds), workers=args.workers,
             show_progress=not args.no_progress, penetration=args.penetration,
-            controller=args.controller,
+            controller=args.controller, max_vehicles=args.max_vehicles,
         )  # fmt: skip
     except ValueError as err:
         raise UsageError(str(err)) from None
+    warn_slot_overflow(report, "parity")
     if args.json:
         print_json(report)
         return
@@ -239,7 +242,7 @@ def cmd_parity(args: argparse.Namespace) -> None:
     print(
         f"not arrived by {report['cap_s']:.0f} s: JAX {report['jax_not_arrived']}, "
         f"SUMO {report['sumo_not_arrived']}; JAX slot overflow "
-        f"{report['jax_slot_overflow']} vehicle-steps"
+        f"{report['jax_slot_overflow']} vehicle-steps ({report['max_vehicles']} slots)"
     )
 
 
@@ -248,6 +251,7 @@ def cmd_bench(args: argparse.Namespace) -> None:
 
     cfg = load_config(args.config)
     result = run_benchmark(cfg, progress=not args.no_progress)
+    warn_slot_overflow(result, "bench")
     if args.json:
         print_json(result)
     else:
@@ -370,6 +374,7 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
         )
     except ValueError as err:
         raise UsageError(f"--policy {args.policy}: {err}") from None
+    warn_slot_overflow(summary, "evaluate")
     results = summary["results"]
     by_label = {
         driver: {percent_label(p): m for p, m in per_p.items()}
@@ -406,6 +411,7 @@ def evaluate_in_sumo(
         )  # fmt: skip
     except (OSError, ValueError) as err:
         raise UsageError(f"--policy {args.policy}: {err}") from None
+    warn_slot_overflow(result, "evaluate (JAX)")
     if args.json:
         print_json({k: v for k, v in result.items() if k != "tables"})
         return
@@ -544,6 +550,13 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--json", action="store_true", help="print one JSON object")
         p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
+    def slots_option(p: argparse.ArgumentParser) -> None:
+        p.add_argument(
+            "--max-vehicles", type=positive_int, default=None,
+            help="JAX vehicle slots M (default: the scenario's "
+            "simulation.max_vehicles, else what the road holds)",
+        )  # fmt: skip
+
     def common(p: argparse.ArgumentParser) -> None:
         p.add_argument(
             "--config",
@@ -578,6 +591,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="who drives the AVs in both simulators: uncontrolled (default, "
         "their vType), accel:A, cruise:V, eco[:B], timed[:H] or a policy file",
     )  # fmt: skip
+    slots_option(p)
     sumo_run_options(p)
     p.set_defaults(func=cmd_parity)
 
@@ -655,9 +669,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="AV shares in percent, e.g. 0,10,...,100 (the default) or 0,50,100",
     )  # fmt: skip
     p.add_argument("--seeds", type=positive_int, default=1, help="number of seeds")
-    p.add_argument(
-        "--max-vehicles", type=positive_int, default=32, help="vehicle slots M"
-    )
+    slots_option(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", type=Path, default=None, help="also write files here")
     p.add_argument("--force", action="store_true", help="overwrite evaluation.json")
