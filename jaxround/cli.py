@@ -472,6 +472,7 @@ def cmd_calibrate(args: argparse.Namespace) -> None:
         black_box=not args.no_black_box, check_sumo=not args.no_sumo_check,
         workers=args.workers, progress=not args.no_progress,
     )  # fmt: skip
+    warn_slot_overflow(result, "calibrate")
     for name, fit in result["fits"].items():
         values = ", ".join(f"{k}={v:.4g}" for k, v in fit["values"].items())
         print(f"{name}: {values}")
