@@ -15,6 +15,7 @@ from jaxround.capacity import (
     overflow_warning,
     resolve_max_vehicles,
     road_capacity,
+    warn_slot_overflow,
 )
 from jaxround.config import ConfigError, config_from_dict, load_config
 from jaxround.env import make, network_file
@@ -89,11 +90,16 @@ def test_config_field_null_and_set() -> None:
     assert config_from_dict(d).simulation.max_vehicles == 24
 
 
-def test_overflow_warning() -> None:
+def test_overflow_warning(capsys: pytest.CaptureFixture[str]) -> None:
     assert overflow_warning(0, 32) is None
     text = overflow_warning(120, 32, "parity")
     assert "120 vehicle-steps" in text and "max_vehicles = 32" in text
     assert "--max-vehicles" in text
+    warn_slot_overflow({"max_vehicles": 32, "jax_slot_overflow": 0}, "parity")
+    assert capsys.readouterr().err == ""
+    warn_slot_overflow({"max_vehicles": 32, "jax_slot_overflow": 7}, "bench")
+    err = capsys.readouterr().err
+    assert err.startswith("warning: bench: 7 vehicle-steps") and "32" in err
 
 
 def past_capacity() -> Any:
