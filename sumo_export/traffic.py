@@ -38,8 +38,9 @@ from sumo_export.scenario import vehicle_id
 
 #: Columns of the packed state handed to the jitted observer.
 COLUMNS = ("active", "route", "pos", "speed", "accel", "waiting_s", "is_av")
-#: Vehicle slots by default (SUMO has no slot limit; the JAX default is 32).
-DEFAULT_SLOTS = 64
+#: Vehicle slots by default: None, the scenario's ``simulation.max_vehicles``,
+#: else what the road holds (`jaxround.core.capacity`), so every vehicle has one.
+DEFAULT_SLOTS: int | None = None
 #: Smallest slot count the observer is compiled for.
 MIN_SLOTS = 32
 
@@ -81,8 +82,8 @@ class SumoObserver:
         cfg: the scenario.
         schedule: the schedule SUMO runs (routes and classes of its vehicles).
         observer: the observer's name (`jaxround.envs.observe`).
-        max_slots: vehicle slots M; vehicles beyond them get no slot and are
-            counted in `overflow_vehicle_steps`.
+        max_slots: vehicle slots M (None: `DEFAULT_SLOTS`); vehicles beyond
+            them get no slot and are counted in `overflow_vehicle_steps`.
         strict: raise OverflowError instead of counting when the slots overflow.
     """
 
@@ -91,7 +92,7 @@ class SumoObserver:
         cfg: ScenarioConfig,
         schedule: Schedule,
         observer: str,
-        max_slots: int = DEFAULT_SLOTS,
+        max_slots: int | None = DEFAULT_SLOTS,
         strict: bool = False,
     ) -> None:
         if observer not in OBSERVATION_SIZES:
@@ -117,7 +118,7 @@ class SumoObserver:
             vehicle_id(i): (int(r), bool(a))
             for i, (r, a) in enumerate(zip(route, schedule.is_av, strict=True))
         }
-        self.slot_sizes = slot_sizes(max_slots)
+        self.slot_sizes = slot_sizes(self.env.max_vehicles)
         self._observers = {
             size: observation_function(
                 RoundaboutEnv(cfg, net, size, self.env.episode_s), self.params

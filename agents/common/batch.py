@@ -203,7 +203,7 @@ class BatchTrainer:
         roundabouts (obs, env_state), zero returns, a key, update 0."""
         k_net, k_env, k_run = jax.random.split(key, 3)
         params = networks.init_params(
-            self.network, k_net, self.obs_size, self.config.max_vehicles
+            self.network, k_net, self.obs_size, self.env.max_vehicles
         )
         obs, env_state = self.reset_envs(k_env)
         return {

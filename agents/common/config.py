@@ -62,9 +62,11 @@ class TrainerConfig:
         c: Any = self
         for name in ("demand_window_s", "episode_s"):
             _require(getattr(c, name) > 0, name, getattr(c, name), "> 0")
-        for name in ("max_vehicles", "n_envs", "total_env_steps",
+        for name in ("n_envs", "total_env_steps",
                      "checkpoint_every", "keep_checkpoints"):  # fmt: skip
             _require(getattr(c, name) >= 1, name, getattr(c, name), ">= 1")
+        m = c.max_vehicles
+        _require(m is None or m >= 1, "max_vehicles", m, ">= 1, or null: the road's")
         _require(c.seed >= 0, "seed", c.seed, ">= 0")
         if not c.penetrations:
             raise ConfigError("penetrations: empty, expected at least one share")
@@ -116,6 +118,17 @@ class TrainerConfig:
         d["agent"].update({k: v for k in AGENT_FIELDS if (v := getattr(self, k))})
         return config_from_dict(d) if d != cfg.to_dict() else cfg
 
+    def slots(self) -> int:
+        """The training environment's vehicle slots M: `max_vehicles`, else
+        the scenario's ``simulation.max_vehicles``, else what its road holds
+        (`jaxround.core.capacity`; compiles the network)."""
+        c: Any = self
+        if c.max_vehicles is not None:
+            return c.max_vehicles
+        from jaxround.envs.roundabout import make
+
+        return make(self.training_scenario())[0].max_vehicles
+
     def training_scenario(self) -> ScenarioConfig:
         """The scenario cut to `demand_window_s` at its own rate of vehicles.
 
@@ -140,7 +153,7 @@ class PPOConfig(TrainerConfig):
     scenario: str = "milan"  # built-in scenario name or YAML path (network, drivers)
     demand_window_s: float = 300.0  # training demand horizon, s; the scenario's rate
     episode_s: float = 360.0  # training episode length, s (window plus a drain)
-    max_vehicles: int = 32  # vehicle slots M per roundabout
+    max_vehicles: int | None = None  # slots M; None: the scenario's (the road's)
     penetrations: tuple[float, ...] = (1.0,)  # AV shares; env i uses entry i % len
     observer: str = ""  # the AVs' observer; empty: the scenario's agent.observer
     action: str = ""  # what the AVs' action means; empty: the scenario's agent.action
@@ -184,7 +197,7 @@ class PPOConfig(TrainerConfig):
     @property
     def minibatch_size(self) -> int:
         """Slot samples per minibatch (agents and masked-out slots together)."""
-        return self.minibatch_env_steps * self.max_vehicles
+        return self.minibatch_env_steps * self.slots()
 
     # ------------------------------------------------------------ checks
 
@@ -216,7 +229,7 @@ class APGConfig(TrainerConfig):
     scenario: str = "milan"  # built-in scenario name or YAML path (network, drivers)
     demand_window_s: float = 300.0  # training demand horizon, s; the scenario's rate
     episode_s: float = 360.0  # training episode length, s (window plus a drain)
-    max_vehicles: int = 32  # vehicle slots M per roundabout
+    max_vehicles: int | None = None  # slots M; None: the scenario's (the road's)
     penetrations: tuple[float, ...] = (1.0,)  # AV shares; env i uses entry i % len
     observer: str = ""  # the AVs' observer; empty: the scenario's agent.observer
     action: str = ""  # what the AVs' action means; empty: the scenario's agent.action

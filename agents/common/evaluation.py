@@ -71,7 +71,7 @@ def evaluate_policy(
     cfg: ScenarioConfig,
     penetrations: Sequence[float],
     seeds: Sequence[int],
-    max_vehicles: int = 32,
+    max_vehicles: int | None = None,
     keep_records: bool = False,
 ) -> dict[str, Any]:
     """Run the policy and the uncontrolled baseline on every schedule.
@@ -81,13 +81,15 @@ def evaluate_policy(
         cfg: the scenario (full demand); its observer is set to the policy's.
         penetrations: AV shares.
         seeds: schedule seeds.
-        max_vehicles: vehicle slots M.
+        max_vehicles: vehicle slots M; None: the config's, else what the
+            road holds (`jaxround.core.capacity`).
         keep_records: also return each run's `VehicleRecords` under
             ``"records": {driver: {penetration: [per seed]}}`` (not JSON).
 
     Returns:
-        ``{"scenario", "seeds", "policy": path, "layout": {...}, "results":
-        {driver: {penetration: metrics}}}`` where metrics are
+        ``{"scenario", "seeds", "policy": path, "layout": {...},
+        "max_vehicles": M, "jax_slot_overflow": vehicle-steps over all runs,
+        "results": {driver: {penetration: metrics}}}`` where metrics are
         `jaxround.analysis.metrics.class_metrics` averaged over seeds, plus
         ``collisions`` and ``slot_overflow`` (means over seeds; collisions
         None when the environment does not count them).
@@ -125,6 +127,7 @@ def evaluate_policy(
 
     states = jax.jit(jax.vmap(one))(batch, keys, use_policy)
     per_run: dict[tuple[str, float], list[dict[str, Any]]] = {}
+    overflow = 0
     records: dict[str, dict[float, list[Any]]] = {d: {} for d in DRIVERS}
     horizon = cfg.demand.duration_s
     for i, (driver, p, _) in enumerate(runs):
@@ -135,6 +138,7 @@ def evaluate_policy(
         collisions = getattr(state, "collisions", None)
         m["collisions"] = None if collisions is None else int(collisions)
         m["slot_overflow"] = int(state.overflow)
+        overflow += m["slot_overflow"]
         per_run.setdefault((driver, p), []).append(m)
     result = {
         "scenario": cfg.name,
@@ -146,6 +150,8 @@ def evaluate_policy(
             "hidden": list(layout.hidden),
             "centralised": layout.centralised,
         },
+        "max_vehicles": env.max_vehicles,
+        "jax_slot_overflow": overflow,
         "results": {
             d: {p: mean_over_runs(per_run[(d, p)]) for p in penetrations}
             for d in DRIVERS

@@ -156,7 +156,7 @@ def render_rollout(
     penetration: float | None = None,
     seed: int = 0,
     fps: float = 10.0,
-    max_vehicles: int = 32,
+    max_vehicles: int | None = None,
 ) -> Path:
     """Animate the first `seconds` of an episode of a scenario (for the CLI).
 
@@ -168,7 +168,7 @@ def render_rollout(
         penetration: AV share 0-1; the config's if None.
         seed: PRNG seed of the drawn schedule.
         fps: frames per second.
-        max_vehicles: vehicle slots M.
+        max_vehicles: vehicle slots M; None: the config's, else the road's.
 
     Returns:
         The path written.

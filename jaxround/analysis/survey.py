@@ -56,6 +56,8 @@ class Survey:
         seeds: the schedules' seeds the counts are averaged over.
         drivers: the human drivers' parameters of the runs (for the record).
         source: "sumo" or "jax".
+        slot_overflow: JAX's vehicle-steps of insertions that waited for a
+            free vehicle slot, over the runs (`jaxround.core.capacity`; 0 in SUMO).
     """
 
     scenario: str
@@ -68,6 +70,7 @@ class Survey:
     seeds: tuple[int, ...] = ()
     drivers: dict[str, float] | None = None
     source: str = ""
+    slot_overflow: int = 0
 
     @property
     def n_slots(self) -> int:
@@ -82,6 +85,7 @@ class Survey:
             "slot_s": self.slot_s,
             "seeds": list(self.seeds),
             "drivers": self.drivers or {},
+            "slot_overflow": self.slot_overflow,
         }
         for name in MEASURES:
             out[name] = np.round(getattr(self, name), 6).tolist()
@@ -287,6 +291,7 @@ def jax_survey(
         seeds=tuple(int(s) for s in seeds),
         drivers=driver_numbers(params),
         source="jax",
+        slot_overflow=int(np.sum(state.overflow)),
     )
 
 

@@ -87,7 +87,7 @@ def run_benchmark(
     cfg: ScenarioConfig,
     batches: Sequence[int] = DEFAULT_BATCHES,
     sim_seconds: float = DEFAULT_SIM_SECONDS,
-    max_vehicles: int = 32,
+    max_vehicles: int | None = None,
     slot_sizes: Sequence[int] = DEFAULT_SLOT_SIZES,
     progress: bool = True,
     *,
@@ -106,7 +106,8 @@ def run_benchmark(
         batches: numbers B of roundabouts stepped together by one jitted call.
         sim_seconds: simulated seconds of the warm-up and of the timed window
             (rounded to whole steps); the window is [S, 2S) of the episode.
-        max_vehicles: vehicle slots M of the batch runs.
+        max_vehicles: vehicle slots M of the batch runs; None: the config's
+            ``simulation.max_vehicles``, else what the road holds.
         slot_sizes: slot counts M of the slot-scaling runs.
         progress: progress bars and notes on stderr.
         slot_batch: batch of the slot-scaling runs.
@@ -122,12 +123,16 @@ def run_benchmark(
         "best_ratio_vs_sumo": x, "best_ratio_vs_sumo_per_cpu_s": x,
         "best_ratio_vs_sumo_parallel": x, "bare_ring": {...}, "slots":
         [{"max_vehicles", "us_per_step_per_roundabout", "us_per_vehicle_step",
-        ...}, ...], "machine": {...}, "sim_seconds": x, ...}``;
-        "steps_per_s" counts roundabout-steps (B per batched step).
+        ...}, ...], "machine": {...}, "sim_seconds": x, "max_vehicles": M,
+        "jax_slot_overflow": x, ...}``; "steps_per_s" counts roundabout-steps
+        (B per batched step); "jax_slot_overflow" is the largest batch's
+        vehicle-steps of slot overflow at M (it runs every smaller batch's
+        schedules).
     """
     batches = [_positive_int(b, "batches") for b in batches]
     slot_sizes = [_positive_int(m, "slot_sizes") for m in slot_sizes]
-    max_vehicles = _positive_int(max_vehicles, "max_vehicles")
+    if max_vehicles is not None:
+        max_vehicles = _positive_int(max_vehicles, "max_vehicles")
     slot_batch = _positive_int(slot_batch, "slot_batch")
     if sumo_processes is None:
         sumo_processes = usable_cpus()
@@ -142,6 +147,8 @@ def run_benchmark(
     started = time.perf_counter()
     load_before = load_average()
     code = code_version()  # at the start: the code this run imported
+    runs = JaxRuns(cfg, steps, seed, max([*batches, slot_batch]))
+    max_vehicles = runs.slots(max_vehicles)
 
     def note(text: str) -> None:
         if progress:
@@ -157,7 +164,6 @@ def run_benchmark(
         cfg, [make_schedule(cfg, seed=seed + i) for i in range(sumo_processes)], steps
     )
 
-    runs = JaxRuns(cfg, steps, seed, max([*batches, slot_batch]))
     jax_rows = []
     for b in tqdm(batches, desc="JAX batches", unit="batch", disable=not progress):
         r = runs.measure(max_vehicles, b)
@@ -217,6 +223,7 @@ def run_benchmark(
         "scenario": cfg.name,
         "n_vehicles": cfg.demand.n_vehicles,
         "max_vehicles": max_vehicles,
+        "jax_slot_overflow": max(row["overflow"] for row in jax_rows),
         "slot_batch": slot_batch,
         "seed": seed,
         "sumo": sumo,
@@ -235,6 +242,15 @@ class JaxRuns:
         self._envs: dict[int, tuple[RoundaboutEnv, EnvParams]] = {}
         self._pool: Schedule | None = None
         self._done: dict[tuple[int, int], dict[str, Any]] = {}
+
+    def slots(self, m: int | None) -> int:
+        """M itself, or for None the environment's default (its config's,
+        else what the road holds), built now."""
+        if m is None:
+            env, params = make(self.cfg)
+            self._envs.setdefault(env.max_vehicles, (env, params))
+            return env.max_vehicles
+        return m
 
     def env(self, m: int) -> RoundaboutEnv:
         if m not in self._envs:

@@ -64,6 +64,7 @@ def run_calibration(
     """The whole `jaxround calibrate` job; writes into `out`:
 
     - calibration.json: fitted values, errors, budgets, wall times, histories,
+      "max_vehicles" and "jax_slot_overflow" (of the fits' exact JAX runs),
       and "chosen": the fit written below, the one with the lowest loss in the
       SUMO re-run ("chosen_by": "sumo_loss"), or in JAX without it;
     - hv_vtype.xml: the human drivers' SUMO vType with the chosen values;
@@ -85,6 +86,7 @@ def run_calibration(
         "seeds": list(survey.seeds),
         "n_slots": survey.n_slots,
         "temperature": temperature,
+        "max_vehicles": env.max_vehicles,
     }
     fits = {"gradient": fit_gradient(
         problem, key, n_starts=starts, n_iters=iters, learning_rate=learning_rate,
@@ -107,6 +109,7 @@ def run_calibration(
             survey.seeds, survey.n_slots, survey.slot_s,
         )  # fmt: skip
         fit["jax_errors"] = survey_errors(sim, survey)
+        fit["jax_slot_overflow"] = sim.slot_overflow
         if check_sumo:
             from sumo_export.measure import sumo_survey
 
@@ -122,6 +125,7 @@ def run_calibration(
                 if k in survey.drivers and survey.drivers[k]
             }
     result["fits"] = fits
+    result["jax_slot_overflow"] = sum(f["jax_slot_overflow"] for f in fits.values())
     # the files carry the fit that reproduces the targets best: in SUMO where
     # the fits were run back there, else in JAX (a low JAX loss can come from
     # fitting JAX's own departures from SUMO)

@@ -183,13 +183,13 @@ def run_jax(
 ) -> dict[str, list[dict[str, Any]]]:
     """Every variant's episodes in JAX, batches of `JAX_BATCH` in one compiled
     program (vType numbers, schedules and the scripted rule are traced):
-    label -> ``{"records", "overflow"}`` per `schedules` entry."""
+    label -> ``{"records", "overflow", "max_vehicles"}`` per `schedules` entry."""
     from sumo_export.runner import DRAIN_S
 
     # the scripts command speeds, whatever action the scenario's agent has
     cfg = dataclasses.replace(cfg, agent=dataclasses.replace(cfg.agent, action="accel"))
     # as long as SUMO may run; each episode stops when its vehicles have left
-    env, base = make(cfg, max_vehicles=32, episode_s=cfg.demand.duration_s + DRAIN_S)
+    env, base = make(cfg, episode_s=cfg.demand.duration_s + DRAIN_S)
     jobs = []  # (label, params, schedule, rule, value)
     for variant in rows:
         av = dict(variant.av)
@@ -234,6 +234,7 @@ def run_jax(
                 {
                     "records": vehicle_records(env, state),
                     "overflow": int(state.overflow),
+                    "max_vehicles": env.max_vehicles,
                 }
             )
     return out
@@ -283,7 +284,7 @@ def summarise(
                 "sumo_collisions": sum(r.collisions for r in s_runs),
                 "sumo_emergency_brakings": sum(r.emergency_brakings for r in s_runs),
                 "sumo_teleports": sum(r.teleports for r in s_runs),
-                "jax_overflow": int(sum(r["overflow"] for r in j_runs)),
+                "jax_slot_overflow": int(sum(r["overflow"] for r in j_runs)),
             }  # fmt: skip
             if 0.0 < p < 1.0:
                 entry["sumo_hv"] = paired_difference(s_rec, s_base, "hv")
@@ -316,7 +317,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     jax_runs = run_jax(cfg, rows, args.seeds)
     entries = summarise(cfg, rows, args.seeds, sumo, jax_runs)
     out.mkdir(parents=True, exist_ok=True)
-    meta = {"scenario": cfg.name, "seeds": args.seeds, "rules": list(RULES)}
+    meta = {
+        "scenario": cfg.name, "seeds": args.seeds, "rules": list(RULES),
+        "max_vehicles": next(iter(jax_runs.values()))[0]["max_vehicles"],
+        "jax_slot_overflow": sum(e["jax_slot_overflow"] for e in entries),
+    }  # fmt: skip
     (out / "headroom.json").write_text(json.dumps({**meta, "rows": entries}, indent=1))
     plot(entries, SWEEP, base_values(cfg), out / "headroom.png")
     print(table(entries))

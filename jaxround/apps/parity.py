@@ -38,16 +38,17 @@ def run_jax(
     cfg: ScenarioConfig,
     seeds: Sequence[int],
     penetration: float = 0.0,
-    max_vehicles: int = 32,
+    max_vehicles: int | None = None,
     driver: DriverSpec | None = None,
     cap_s: float | None = None,
 ) -> list[dict[str, Any]]:
     """Run the schedules of `seeds` in JAX, all seeds in one vmapped batch,
-    each until its vehicles have left or `cap_s` (default: the episode).
+    each until its vehicles have left or `cap_s` (default: the episode), with
+    `max_vehicles` slots (None: the config's, else what the road holds).
 
     Returns:
-        One ``{"records": VehicleRecords, "overflow": int, "end_s": float}``
-        per seed.
+        One ``{"records": VehicleRecords, "overflow": int, "end_s": float,
+        "max_vehicles": int}`` per seed.
     """
     driver = parse_driver(None) if driver is None else driver
     env, params = make(config_for(cfg, driver), max_vehicles=max_vehicles)
@@ -72,6 +73,7 @@ def run_jax(
                 "records": vehicle_records(env, state),
                 "overflow": int(state.overflow),
                 "end_s": float(state.step) * env.dt,
+                "max_vehicles": env.max_vehicles,
             }
         )
     return out
@@ -104,12 +106,16 @@ def parity_report(
     show_progress: bool = True,
     penetration: float = 0.0,
     controller: str | None = None,
+    max_vehicles: int | None = None,
 ) -> dict[str, Any]:
     """The `jaxround parity --json` object for the schedules of `seeds`.
 
     Args:
         controller: the AVs' driver (`jaxround.apps.drivers`); None: uncontrolled
             (their vType).
+        max_vehicles: JAX's vehicle slots M; None: the config's, else what
+            the road holds. The report gives M and the slot overflow
+            (vehicle-steps insertions waited for a slot, 0 with enough slots).
 
     Raises:
         ValueError: a bad controller spec, before anything runs.
@@ -124,7 +130,9 @@ def parity_report(
         config_for(cfg, driver), schedules, workers=workers,
         controller=sumo_driver(driver),
     )  # fmt: skip
-    jax_runs = run_jax(cfg, seeds, penetration=penetration, driver=driver, cap_s=cap_s)
+    jax_runs = run_jax(
+        cfg, seeds, penetration, max_vehicles, driver=driver, cap_s=cap_s
+    )
     horizon = cfg.demand.duration_s
     sumo_m = mean_over_runs([class_metrics(r.records, horizon) for r in sumo_runs])
     jax_m = mean_over_runs([class_metrics(r["records"], horizon) for r in jax_runs])
@@ -153,6 +161,7 @@ def parity_report(
         "cap_s": cap_s,
         "jax_not_arrived": sum(left_inside(r["records"]) for r in jax_runs),
         "sumo_not_arrived": sum(left_inside(r.records) for r in sumo_runs),
+        "max_vehicles": jax_runs[0]["max_vehicles"],
         "jax_slot_overflow": int(sum(r["overflow"] for r in jax_runs)),
         "sumo_collisions": int(sum(r.collisions for r in sumo_runs)),
         "sumo_teleports": int(sum(r.teleports for r in sumo_runs)),

@@ -50,7 +50,8 @@ def evaluate_everywhere(
     Returns:
         ``{"scenario", "seeds", "policy", "sumo": {label: M},
         "sumo_uncontrolled": {label: M}, "jax": {label: M},
-        "jax_uncontrolled": {label: M}, "comparison": {...}, "tables"}`` with
+        "jax_uncontrolled": {label: M}, "max_vehicles": JAX's slots,
+        "jax_slot_overflow": vehicle-steps, "comparison": {...}, "tables"}`` with
         M as `jaxround.analysis.metrics.class_metrics` (means over seeds) plus the
         safety counters, and "comparison" as `compare_with_uncontrolled`;
         also written to ``out/evaluation.json``.
@@ -89,6 +90,8 @@ def evaluate_everywhere(
         "sumo_uncontrolled": by_label({p: r["mean"] for p, r in plain.items()}),
         "jax": by_label(jax_policy),
         "jax_uncontrolled": by_label(jax_eval["results"]["uncontrolled"]),
+        "max_vehicles": jax_eval["max_vehicles"],
+        "jax_slot_overflow": jax_eval["jax_slot_overflow"],
         "comparison": compare_with_uncontrolled(
             {"sumo": sumo_records, "jax": jax_eval["records"]}
         ),

@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxround.core import dynamics, emissions, geometry, idm
+from jaxround.core.capacity import resolve_max_vehicles
 from jaxround.core.network import CompiledNetwork
 from jaxround.core.state import EnvParams, EnvState, Registrations, Schedule
 from jaxround.envs import departures, observe, queues, schedules
@@ -45,15 +46,16 @@ SHARED_DRIVER_FIELDS = (
 class RoundaboutEnv:
     """A single-lane roundabout with M vehicle slots and N scheduled vehicles.
 
-    Static settings (shapes, dt, the network) live here; traced numbers in
-    `EnvParams`; everything that changes in `EnvState`.
+    M: given, else the config's ``simulation.max_vehicles``, else what the road
+    holds (`jaxround.core.capacity`). Static settings (shapes, dt, the network) live
+    here; traced numbers in `EnvParams`; everything that changes in `EnvState`.
     """
 
     def __init__(
         self,
         cfg: ScenarioConfig,
         network: CompiledNetwork,
-        max_vehicles: int = 32,
+        max_vehicles: int | None = None,
         episode_s: float | None = None,
     ) -> None:
         if network.n_legs != cfg.n_legs:
@@ -61,13 +63,11 @@ class RoundaboutEnv:
                 f"network has {network.n_legs} legs, config {cfg.name!r} "
                 f"has {cfg.n_legs}"
             )
-        if max_vehicles < 1:
-            raise ValueError(f"max_vehicles: {max_vehicles}, expected >= 1")
         check_driver_classes(cfg)
         self.cfg = cfg
         self.network = network
         self.net = geometry.NetArrays.from_network(network)
-        self.max_vehicles = int(max_vehicles)
+        self.max_vehicles = resolve_max_vehicles(max_vehicles, cfg, network)
         self.n_schedule = cfg.demand.n_vehicles
         self.dt = cfg.simulation.dt_s
         self.n_substeps = idm.idm_substeps(self.dt)
@@ -323,7 +323,7 @@ def check_driver_classes(cfg: ScenarioConfig) -> None:
 
 def make(
     scenario: str | Path | ScenarioConfig = "milan",
-    max_vehicles: int = 32,
+    max_vehicles: int | None = None,
     episode_s: float | None = None,
     workdir: str | Path | None = None,
 ) -> tuple[RoundaboutEnv, EnvParams]:
@@ -331,7 +331,7 @@ def make(
 
     Args:
         scenario: a built-in name, a YAML path, or a `ScenarioConfig`.
-        max_vehicles: vehicle slots M.
+        max_vehicles: vehicle slots M; None: the config's, else what the road holds.
         episode_s: episode length; default demand horizon + 300 s.
         workdir: where to write the SUMO network; a cache folder if None.
 

@@ -179,12 +179,19 @@ class SimulationConfig:
     dt_s: float  # simulation step length, s
     penetration: float  # share of AVs, 0..1
     seed: int  # seed of the departure schedule
+    # JAX vehicle slots M; null: what the road holds (`jaxround.core.capacity`)
+    max_vehicles: int | None = None
 
     def validate(self, where: str) -> None:
         check_positive(self.dt_s, f"{where}.dt_s")
         check_share(self.penetration, f"{where}.penetration")
         if self.seed < 0:
             raise ConfigError(f"{where}.seed: {self.seed}, expected >= 0")
+        if self.max_vehicles is not None and self.max_vehicles < 1:
+            raise ConfigError(
+                f"{where}.max_vehicles: {self.max_vehicles}, expected >= 1, or "
+                "null for what the road holds"
+            )
 
 
 #: Observers of the AV policy (`jaxround.envs.observe`).

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import types
 import typing
 from importlib import resources
 from pathlib import Path
@@ -92,6 +93,9 @@ def _build(tp: Any, value: Any, where: str, what: str = "config") -> Any:
             kwargs[name] = _build(hints[name], value[name], sub)
         return tp(**kwargs)
     origin = typing.get_origin(tp)
+    if origin is types.UnionType:  # `X | None`: null, or an X
+        (item_tp,) = [t for t in typing.get_args(tp) if t is not type(None)]
+        return None if value is None else _build(item_tp, value, where, what)
     if origin is tuple:
         if not isinstance(value, list | tuple):
             raise ConfigError(f"{label}: expected a list, got {type(value).__name__}")

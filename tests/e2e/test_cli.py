@@ -92,3 +92,24 @@ def test_bad_config_fails_before_work(
     assert "demand.od[0]: sums to 0.9, expected 1" in err
     with pytest.raises(SystemExit):
         main(["sumo", "--penetration", "140"])
+
+
+@pytest.mark.sumo
+def test_parity_warns_of_slot_overflow(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # 2 slots for a roundabout that holds 76: insertions wait for a slot, and
+    # the command says so on stderr, the JSON carries M and the overflow
+    d = builtin_dict("milan")
+    d["demand"].update(n_vehicles=40, duration_s=60.0)
+    d["simulation"]["max_vehicles"] = 8  # the config's, overridden by the flag
+    path = tmp_path / "tight.yaml"
+    path.write_text(yaml.safe_dump(d))
+    argv = ["parity", "--config", str(path), "--seeds", "1", "--max-vehicles", "2",
+            "--workers", "1", "--json", "--no-progress"]  # fmt: skip
+    assert main(argv) == 0
+    captured = capsys.readouterr()
+    report = json.loads(captured.out)
+    assert report["max_vehicles"] == 2 and report["jax_slot_overflow"] > 0
+    assert f"{report['jax_slot_overflow']} vehicle-steps" in captured.err
+    assert "max_vehicles = 2" in captured.err and "--max-vehicles" in captured.err

@@ -158,6 +158,7 @@ def test_evaluate_json(
     assert results["policy"]["0"] == results["uncontrolled"]["0"]
     assert (out / "evaluation.json").exists()
     assert (out / "jax_policy_table3.md").exists()
+    assert report["max_vehicles"] == 16 and report["jax_slot_overflow"] == 0
 
 
 def test_evaluate_refuses(

@@ -364,7 +364,8 @@ def test_make_milan_defaults_and_shapes() -> None:
     env, params = make("milan")
     cfg = load_config("milan")
     assert isinstance(env, RoundaboutEnv) and isinstance(params, EnvParams)
-    assert env.max_vehicles == 32 and env.n_schedule == cfg.demand.n_vehicles == 1540
+    m = 76  # the road's capacity (`jaxround.core.capacity`, tests/test_capacity.py)
+    assert env.max_vehicles == m and env.n_schedule == cfg.demand.n_vehicles == 1540
     assert env.n_legs == 4 and env.network.n_routes == 12
     assert env.episode_s == cfg.demand.duration_s + 300.0
     assert env.episode_steps == 7800
@@ -374,19 +375,19 @@ def test_make_milan_defaults_and_shapes() -> None:
     # shapes without compiling: trace only
     obs, state = jax.eval_shape(env.reset, key, params)
     assert env.obs_size == 17 and env.action_size == 2  # the rich observer
-    assert obs.shape == (32, env.obs_size)
-    assert state.pos.shape == (32,) and state.inserted.shape == (1540,)
+    assert obs.shape == (m, env.obs_size)
+    assert state.pos.shape == (m,) and state.inserted.shape == (1540,)
     assert state.schedule.depart_s.shape == (1540,)
-    action = jnp.zeros((32, 2))
+    action = jnp.zeros((m, 2))
     obs2, state2, reward, done, info = jax.eval_shape(
         env.step, key, state, action, params
     )
-    assert obs2.shape == (32, env.obs_size) and obs2.dtype == jnp.float32
-    assert reward.shape == (32,) and reward.dtype == jnp.float32
+    assert obs2.shape == (m, env.obs_size) and obs2.dtype == jnp.float32
+    assert reward.shape == (m,) and reward.dtype == jnp.float32
     assert done.shape == () and done.dtype == jnp.bool_
     assert {"agent", "terminated", "truncated", "collisions"} <= set(info)
     assert {"overflow", "arrived", "n_active"} <= set(info)
-    assert info["agent"].shape == info["terminated"].shape == (32,)
+    assert info["agent"].shape == info["terminated"].shape == (m,)
     assert jax.tree.map(lambda x: (x.shape, x.dtype), state2) == jax.tree.map(
         lambda x: (x.shape, x.dtype), state
     )

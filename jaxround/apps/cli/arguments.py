@@ -11,7 +11,9 @@ import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
+from jaxround.core.capacity import overflow_warning
 from jaxround.scenario.config import ScenarioConfig
 
 
@@ -121,3 +123,23 @@ def config_option(p: argparse.ArgumentParser) -> None:
         default=None,
         help="scenario YAML file or built-in name (default: milan)",
     )
+
+
+def slots_option(p: argparse.ArgumentParser) -> None:
+    """--max-vehicles: the JAX environment's vehicle slots M."""
+    p.add_argument(
+        "--max-vehicles", type=positive_int, default=None,
+        help="JAX vehicle slots M (default: the scenario's "
+        "simulation.max_vehicles, else what the road holds)",
+    )  # fmt: skip
+
+
+def warn_slot_overflow(result: dict[str, Any], what: str) -> None:
+    """Print `overflow_warning` to stderr for a JSON result that carries
+    ``jax_slot_overflow`` and ``max_vehicles`` (parity, evaluation, bench);
+    nothing when it has none."""
+    text = overflow_warning(
+        int(result.get("jax_slot_overflow") or 0), result.get("max_vehicles"), what
+    )
+    if text:
+        print(text, file=sys.stderr)

@@ -11,6 +11,7 @@ from jaxround.apps.cli.arguments import (
     fresh_output_dir,
     positive_int,
     seeds_of,
+    warn_slot_overflow,
     workers_option,
 )
 from jaxround.scenario.config import load_config
@@ -69,6 +70,7 @@ def cmd_calibrate(args: argparse.Namespace) -> None:
         black_box=not args.no_black_box, check_sumo=not args.no_sumo_check,
         workers=args.workers, progress=not args.no_progress,
     )  # fmt: skip
+    warn_slot_overflow(result, "calibrate")
     for name, fit in result["fits"].items():
         values = ", ".join(f"{k}={v:.4g}" for k, v in fit["values"].items())
         print(f"{name}: {values}")

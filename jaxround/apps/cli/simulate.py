@@ -15,7 +15,9 @@ from jaxround.apps.cli.arguments import (
     positive_int,
     print_json,
     seeds_of,
+    slots_option,
     sumo_run_options,
+    warn_slot_overflow,
 )
 from jaxround.scenario.config import load_config
 
@@ -84,10 +86,11 @@ def cmd_parity(args: argparse.Namespace) -> None:
         report = parity_report(
             cfg, seeds_of(cfg, args.seeds), workers=args.workers,
             show_progress=not args.no_progress, penetration=args.penetration,
-            controller=args.controller,
+            controller=args.controller, max_vehicles=args.max_vehicles,
         )  # fmt: skip
     except ValueError as err:
         raise UsageError(str(err)) from None
+    warn_slot_overflow(report, "parity")
     if args.json:
         print_json(report)
         return
@@ -117,7 +120,7 @@ def cmd_parity(args: argparse.Namespace) -> None:
     print(
         f"not arrived by {report['cap_s']:.0f} s: JAX {report['jax_not_arrived']}, "
         f"SUMO {report['sumo_not_arrived']}; JAX slot overflow "
-        f"{report['jax_slot_overflow']} vehicle-steps"
+        f"{report['jax_slot_overflow']} vehicle-steps ({report['max_vehicles']} slots)"
     )
 
 
@@ -126,6 +129,7 @@ def cmd_bench(args: argparse.Namespace) -> None:
 
     cfg = load_config(args.config)
     result = run_benchmark(cfg, progress=not args.no_progress)
+    warn_slot_overflow(result, "bench")
     if args.json:
         print_json(result)
     else:
@@ -175,6 +179,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
         help="who drives the AVs in both simulators: uncontrolled (default, "
         "their vType), accel:A, cruise:V, eco[:B], timed[:H] or a policy file",
     )  # fmt: skip
+    slots_option(p)
     sumo_run_options(p)
     p.set_defaults(func=cmd_parity)
 

@@ -16,6 +16,8 @@ from jaxround.apps.cli.arguments import (
     positive_int,
     print_json,
     seeds_of,
+    slots_option,
+    warn_slot_overflow,
     workers_option,
 )
 from jaxround.apps.pipeline import QUICK_TRAIN_STEPS
@@ -36,9 +38,11 @@ def evaluate_in_sumo(
         )  # fmt: skip
     except (OSError, ValueError) as err:
         raise UsageError(f"--policy {args.policy}: {err}") from None
+    warn_slot_overflow(result, "evaluate (JAX)")
     if args.json:
         print_json({k: v for k, v in result.items() if k != "tables"})
         return
+    warn_slot_overflow(result, "run (JAX evaluation)")
     print(result["tables"])
     print(headline(result))
     print(f"wrote {out / 'evaluation.json'}, tables and sumo_policy.png in {out}")
@@ -194,6 +198,7 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
         )
     except ValueError as err:
         raise UsageError(f"--policy {args.policy}: {err}") from None
+    warn_slot_overflow(summary, "evaluate")
     results = summary["results"]
     by_label = {
         driver: {percent_label(p): m for p, m in per_p.items()}
@@ -309,9 +314,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
         help="AV shares in percent, e.g. 0,10,...,100 (the default) or 0,50,100",
     )  # fmt: skip
     p.add_argument("--seeds", type=positive_int, default=1, help="number of seeds")
-    p.add_argument(
-        "--max-vehicles", type=positive_int, default=32, help="vehicle slots M"
-    )
+    slots_option(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", type=Path, default=None, help="also write files here")
     p.add_argument("--force", action="store_true", help="overwrite evaluation.json")
