@@ -23,7 +23,7 @@ def minimal_arrival_time(
     accel: jax.Array,
     decel: jax.Array,
 ) -> jax.Array:
-    """SUMO's MSVehicle::getMinimalArrivalTime: reach `v_arrive`, then keep it.
+    """SUMO's MSCFModel::getMinimalArrivalTime: reach `v_arrive`, then keep it.
 
     Accelerates at `accel` (or brakes at `decel`) from `v` to `v_arrive` and
     covers the rest of `dist` at constant speed.
