@@ -161,10 +161,10 @@ def planned_speed(
     )
     seen = starts - pos[:, None]
     later = (jnp.arange(starts.shape[1])[None, :] > k[:, None]) & (lanes_ahead >= 0)
-    pc = p.columns()  # per-vehicle numbers against (M, K) arrays
+    p_columns = p.columns()  # per-vehicle numbers against (M, K) arrays
     v_limits = idm.idm_free_speed_ahead(
-        speed[:, None], seen, limit_ahead, v_lane[:, None], pc.accel, p.decel,
-        pc.tau, p.delta, dt, n_substeps,
+        speed[:, None], seen, limit_ahead, v_lane[:, None], p_columns.accel, p.decel,
+        p_columns.tau, p.delta, dt, n_substeps,
     )  # fmt: skip
     v_limits = jnp.maximum(v_limits, speed[:, None] - p.decel * dt)
     v_limits_k = jnp.where(later, v_limits, jnp.inf)  # (M, K)
@@ -193,7 +193,7 @@ def planned_speed(
     v_follow = jnp.minimum(v_follow, v_link)
     can_brake = (seen > brake_gap(speed, p.decel, 0.0, dt)) | (speed < p.decel * dt)
     before_line = active & (seen > 0)
-    imp = jnp.clip(p.impatience + waiting_s / p.time_to_impatience, 0.0, 1.0)
+    impatience = jnp.clip(p.impatience + waiting_s / p.time_to_impatience, 0.0, 1.0)
     step_label = t + dt
     # planMove: a vehicle that could still stop and would find its entry
     # closed (judged on the previous step's registrations) withdraws its
@@ -202,11 +202,12 @@ def planned_speed(
         leader >= 0, tables.back[route, jnp.maximum(leader, 0)], jnp.inf
     )
 
-    def fol(v, v_l, gap):  # SUMO's futureVSafe: followSpeed from the leave speed
-        q = pc if v.ndim == 2 else p
+    def follow_from(v: jax.Array, v_l: jax.Array, gap: jax.Array) -> jax.Array:
+        """SUMO's futureVSafe: followSpeed from the leave speed, (M,) or (M, G)."""
+        numbers = p_columns if v.ndim == 2 else p
         return idm.idm_follow_speed(
-            v, v_l, gap, v_lane[:, None] if v.ndim == 2 else v_lane, q.accel,
-            p.decel, q.tau, p.min_gap, p.delta, dt, n_substeps,
+            v, v_l, gap, v_lane[:, None] if v.ndim == 2 else v_lane, numbers.accel,
+            p.decel, numbers.tau, p.min_gap, p.delta, dt, n_substeps,
         )  # fmt: skip
 
     # leaders on the approach cap the entry's arrival speed (adaptToLeader)
@@ -214,8 +215,13 @@ def planned_speed(
     # every lane of the look-ahead: its rearmost vehicle (SUMO's
     # planMoveInternal loop); the entry's internal lane is one of them
     look_ahead = rearmost_on_lanes(net, tables, route, pos, active)  # (M, K)
-    e_has, e_j, e_gap = on_entry_lane(net, look_ahead)
-    entry_follow = (e_has[:, 0], speed[e_j[:, 0]], e_gap[:, 0], fol)
+    entry_has, entry_slot, entry_gap = on_entry_lane(net, look_ahead)
+    entry_follow = (
+        entry_has[:, 0],
+        speed[entry_slot[:, 0]],
+        entry_gap[:, 0],
+        follow_from,
+    )
     plan = entry_approach(net, p, route, pos, speed, speed_factor, v_lane,
                           jnp.inf, t, dt, appr_cap, v_start=v_start)  # fmt: skip
     plan = plan._replace(leave_speed=plan.arrival_speed)
@@ -234,7 +240,7 @@ def planned_speed(
 
     closed_plan = per_slot(
         entry_blocked(
-            net, p, route[cand], jax.tree.map(pick, plan), prev_regs, imp[cand],
+            net, p, route[cand], jax.tree.map(pick, plan), prev_regs, impatience[cand],
             step_label, dt, ego_slot=cand,
         )
     )  # fmt: skip
@@ -246,16 +252,16 @@ def planned_speed(
     )
     v_chain = jnp.minimum(v_start, v_follow)
     v_chain = jnp.minimum(v_chain, jnp.minimum(v_limits, v_free))
-    c_off = net.conflict_offset[route]  # (M, G)
-    before = later[:, :, None] & (starts[:, :, None] < c_off[:, None, :])
+    conflict_offset = net.conflict_offset[route]  # (M, G)
+    before = later[:, :, None] & (starts[:, :, None] < conflict_offset[:, None, :])
     lim_before = jnp.min(jnp.where(before, v_limits_k[:, :, None], jnp.inf), axis=1)
     merge_start = pos + to_link
-    link_before = merge_start[:, None] < c_off
+    link_before = merge_start[:, None] < conflict_offset
     v_pre = jnp.minimum(v_start[:, None], lim_before)
     v_pre = jnp.where(link_before, jnp.minimum(v_pre, v_link[:, None]), v_pre)
-    prev_start = c_off - net.prev_lane_length[route]
+    prev_start = conflict_offset - net.prev_lane_length[route]
     lead_early = leader_back[:, None] < prev_start
-    lead_ring = ~lead_early & (leader_back[:, None] < c_off)
+    lead_ring = ~lead_early & (leader_back[:, None] < conflict_offset)
     v_pre = jnp.where(lead_early, jnp.minimum(v_pre, v_follow_own[:, None]), v_pre)
     ring_cap = jnp.where(lead_ring, v_follow_own[:, None], jnp.inf)
     # every lane of the look-ahead: its rearmost vehicle, and the link
@@ -263,60 +269,73 @@ def planned_speed(
     lanes_k = net.route_lanes[route]
     lens_k = net.lane_length[jnp.maximum(lanes_k, 0)]
     ends_k = starts + lens_k  # (M, K), inf padded
-    l_has, l_j, l_gap = look_ahead
-    f_k = idm.idm_follow_speed(
-        speed[:, None], speed[l_j], l_gap, v_lane[:, None], pc.accel, p.decel,
-        pc.tau, p.min_gap, p.delta, dt, n_substeps,
+    ahead_has, ahead_slot, ahead_gap = look_ahead
+    v_follow_k = idm.idm_follow_speed(
+        speed[:, None], speed[ahead_slot], ahead_gap, v_lane[:, None],
+        p_columns.accel, p.decel, p_columns.tau, p.min_gap, p.delta, dt, n_substeps,
     )  # fmt: skip
     mine = (jnp.arange(starts.shape[1])[None, :] >= k[:, None]) & (lanes_k >= 0)
-    f_k = jnp.where(l_has & mine, f_k, jnp.inf)
+    v_follow_k = jnp.where(ahead_has & mine, v_follow_k, jnp.inf)
     ends_g = ends_k[:, :, None]
-    c3 = c_off[:, None, :]
-    early = ends_g < c3 - net.prev_lane_length[route][:, None, :] + 1e-3
-    prev_l = jnp.abs(ends_g - c3) < 1e-3
-    v_pre = jnp.minimum(v_pre, jnp.min(jnp.where(early, f_k[:, :, None], jnp.inf), 1))
+    conflict_g = conflict_offset[:, None, :]
+    early = ends_g < conflict_g - net.prev_lane_length[route][:, None, :] + 1e-3
+    prev_l = jnp.abs(ends_g - conflict_g) < 1e-3
+    v_pre = jnp.minimum(
+        v_pre, jnp.min(jnp.where(early, v_follow_k[:, :, None], jnp.inf), 1)
+    )
     ring_cap = jnp.minimum(
-        ring_cap, jnp.min(jnp.where(prev_l, f_k[:, :, None], jnp.inf), 1)
+        ring_cap, jnp.min(jnp.where(prev_l, v_follow_k[:, :, None], jnp.inf), 1)
     )
 
-    def link_leaders_at(kk: jax.Array) -> jax.Array:  # the merge at route lane kk
+    def link_leaders_at(
+        merge_k: jax.Array,
+    ) -> jax.Array:  # the merge at route lane merge_k
         v, _ = link_leader_speed(
-            net, p, route, pos, speed, v_lane, active, (seen > 0) & (kk == 1),
-            v_wait, dt, n_substeps, action_step, km_fixed=kk, tables=tables,
+            net, p, route, pos, speed, v_lane, active, (seen > 0) & (merge_k == 1),
+            v_wait, dt, n_substeps, action_step, km_fixed=merge_k, tables=tables,
         )  # fmt: skip
         return v
 
     # only lanes that merge can have link leaders; one vmapped program for
     # all of them (not one copy per merge: the step compiles faster)
     merges = jnp.asarray(net.merge_positions, jnp.int32)
-    vl_k = jnp.full((m, starts.shape[1]), jnp.inf)
+    v_link_k = jnp.full((m, starts.shape[1]), jnp.inf)
     if merges.size:
-        vl_k = vl_k.at[:, merges].set(jax.vmap(link_leaders_at, out_axes=1)(merges))
-    # vl_k (M, K): the link leaders' speed where lane k merges
-    m_before = starts[:, :, None] < c3 - 1e-3
+        v_link_k = v_link_k.at[:, merges].set(
+            jax.vmap(link_leaders_at, out_axes=1)(merges)
+        )
+    # v_link_k (M, K): the link leaders' speed where lane k merges
+    m_before = starts[:, :, None] < conflict_g - 1e-3
     v_pre = jnp.minimum(
-        v_pre, jnp.min(jnp.where(m_before, vl_k[:, :, None], jnp.inf), 1)
+        v_pre, jnp.min(jnp.where(m_before, v_link_k[:, :, None], jnp.inf), 1)
     )
-    via_k = jnp.abs(starts[:, :, None] - c3) < 1e-3
-    via_cap = jnp.min(jnp.where(via_k, vl_k[:, :, None], jnp.inf), 1)
+    via_k = jnp.abs(starts[:, :, None] - conflict_g) < 1e-3
+    via_cap = jnp.min(jnp.where(via_k, v_link_k[:, :, None], jnp.inf), 1)
     reg_kw = dict(v_pre=v_pre, ring_cap=ring_cap)
-    t_has, t_j, t_gap = on_through_lanes(net, look_ahead, route)  # (M, G)
-    reg_kw["leave_follow"] = (t_has, speed[t_j], t_gap, fol)
+    through_has, through_slot, through_gap = on_through_lanes(
+        net, look_ahead, route
+    )  # (M, G)
+    reg_kw["leave_follow"] = (
+        through_has,
+        speed[through_slot],
+        through_gap,
+        follow_from,
+    )
     # link leaders at the exit of the via lane lower its leave speed
     reg_kw["leave_cap"] = via_cap
     regs = register(net, p, route, pos, speed, speed_factor, v_chain, v_follow,
                     leader_back, active, slowed, t, dt, **reg_kw)  # fmt: skip
     # link leaders at every merge of the look-ahead, not only the next one
-    v_follow = jnp.minimum(v_follow, jnp.min(vl_k, axis=1))
+    v_follow = jnp.minimum(v_follow, jnp.min(v_link_k, axis=1))
     # executeMove: the entry is tested against this step's registrations
     ego = entry_approach(net, p, route, pos, speed, speed_factor, v_lane,
                          leave_cap, t, dt, appr_cap,
                          entry_follow, v_start=v_start)  # fmt: skip
-    imp_now = jnp.where(can_brake, imp, 1.0)
+    impatience_now = jnp.where(can_brake, impatience, 1.0)
     # a weight, exactly 0/1 unless the dynamics are relaxed (jaxround.core.relax)
     blocked_w = jnp.zeros(m).at[cand].max(
         entry_blocked_weight(
-            net, p, route[cand], jax.tree.map(pick, ego), regs, imp_now[cand],
+            net, p, route[cand], jax.tree.map(pick, ego), regs, impatience_now[cand],
             step_label, dt, ego_slot=cand,
         ) * cand_ok
     ) * before_line  # fmt: skip
