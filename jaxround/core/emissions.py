@@ -18,8 +18,8 @@ The rate, in mg/s, for the speed ``v`` after a step (m/s), the acceleration
 Measured against SUMO 1.28: ``emissionsMap`` over v 0..50 m/s, a -5..5 m/s^2
 and slopes -6..6 deg (282,807 points per pollutant, all equal to the 6 printed
 digits), and ``--emission-output`` of simulations on a flat and on a sloped
-road (equal to the 8 printed decimals). Where this differs from the reference
-notes (``/work/shared/reference/sumo-models.md``):
+road (equal to the 8 printed decimals). Where this differs from the usual
+summary of SUMO's HBEFA4 cut-off (``a' < c(v)``, the "notes" below):
 
 * Slopes: the notes' cut-off ``a' < c(v)`` only holds on a flat road. SUMO
   compares the *raw* acceleration ``a`` with a threshold that contains the
