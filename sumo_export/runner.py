@@ -22,14 +22,11 @@ from typing import Any
 
 import numpy as np
 
-from jaxround.scenario.config import ScenarioConfig
+from jaxround.scenario.config import DRAIN_S, ScenarioConfig
 from jaxround.scenario.edges import in_edge
 from jaxround.scenario.records import VehicleRecords
 from jaxround.scenario.schedule import Schedule
 from sumo_export.scenario import vehicle_id, write_scenario
-
-#: Extra simulated time after the demand horizon for the last vehicles to leave.
-DRAIN_S = 1800.0
 
 #: Called as ``controller(libsumo, time_s)`` after every SUMO step.
 Controller = Callable[[Any, float], None]

@@ -27,9 +27,9 @@ from agents.common.export import (
 )
 from jaxround.analysis.metrics import class_metrics, mean_over_runs
 from jaxround.core.state import EnvState
-from jaxround.envs.rollout import NO_COMMAND, Policy, run_episode, vehicle_records
+from jaxround.envs.rollout import NO_COMMAND, Policy, run_until_left, vehicle_records
 from jaxround.envs.roundabout import make
-from jaxround.scenario.config import ScenarioConfig, config_from_dict
+from jaxround.scenario.config import DRAIN_S, ScenarioConfig, config_from_dict
 from jaxround.scenario.schedule import make_schedule
 
 #: The two drivers of the AVs, in the order of the results.
@@ -89,6 +89,8 @@ def evaluate_policy(
     Returns:
         ``{"scenario", "seeds", "policy": path, "layout": {...},
         "max_vehicles": M, "jax_slot_overflow": vehicle-steps over all runs,
+        "cap_s": the longest a run went on, "jax_not_arrived": vehicles
+        still in or waiting at the cap, over all runs,
         "results": {driver: {penetration: metrics}}}`` where metrics are
         `jaxround.analysis.metrics.class_metrics` averaged over seeds, plus
         ``collisions`` and ``slot_overflow`` (means over seeds; collisions
@@ -101,7 +103,10 @@ def evaluate_policy(
     arrays, layout = load_policy(policy_path)
     check_scenario(layout, cfg)
     cfg = with_observer(cfg, layout.observer, layout.action)
-    env, params = make(cfg, max_vehicles=max_vehicles)
+    # every run goes on until its vehicles have left, as SUMO's runs do, or
+    # to the same cap (the demand horizon plus DRAIN_S)
+    cap_s = cfg.demand.duration_s + DRAIN_S
+    env, params = make(cfg, max_vehicles=max_vehicles, episode_s=cap_s)
     obs, _ = jax.eval_shape(env.reset, jax.random.PRNGKey(0), params)
     if obs.shape[-1] != layout.obs_size:
         raise ValueError(
@@ -123,11 +128,11 @@ def evaluate_policy(
 
     def one(schedule: Any, key: jax.Array, flag: jax.Array) -> EnvState:
         policy = switched_policy(weights, layout, flag)
-        return run_episode(env, params, schedule, key, policy)
+        return run_until_left(env, params, schedule, key, policy)
 
     states = jax.jit(jax.vmap(one))(batch, keys, use_policy)
     per_run: dict[tuple[str, float], list[dict[str, Any]]] = {}
-    overflow = 0
+    overflow = not_arrived = 0
     records: dict[str, dict[float, list[Any]]] = {d: {} for d in DRIVERS}
     horizon = cfg.demand.duration_s
     for i, (driver, p, _) in enumerate(runs):
@@ -139,6 +144,7 @@ def evaluate_policy(
         m["collisions"] = None if collisions is None else int(collisions)
         m["slot_overflow"] = int(state.overflow)
         overflow += m["slot_overflow"]
+        not_arrived += int(np.sum(~rec.arrived))
         per_run.setdefault((driver, p), []).append(m)
     result = {
         "scenario": cfg.name,
@@ -152,6 +158,8 @@ def evaluate_policy(
         },
         "max_vehicles": env.max_vehicles,
         "jax_slot_overflow": overflow,
+        "cap_s": cap_s,
+        "jax_not_arrived": not_arrived,
         "results": {
             d: {p: mean_over_runs(per_run[(d, p)]) for p in penetrations}
             for d in DRIVERS

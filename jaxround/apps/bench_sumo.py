@@ -112,7 +112,8 @@ def _sumo_worker(
     """
     import libsumo
 
-    from sumo_export.runner import DRAIN_S, sumo_arguments
+    from jaxround.scenario.config import DRAIN_S
+    from sumo_export.runner import sumo_arguments
     from sumo_export.scenario import write_scenario
 
     with tempfile.TemporaryDirectory(prefix="jaxround-bench-") as tmp:

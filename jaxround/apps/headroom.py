@@ -184,7 +184,7 @@ def run_jax(
     """Every variant's episodes in JAX, batches of `JAX_BATCH` in one compiled
     program (vType numbers, schedules and the scripted rule are traced):
     label -> ``{"records", "overflow", "max_vehicles"}`` per `schedules` entry."""
-    from sumo_export.runner import DRAIN_S
+    from jaxround.scenario.config import DRAIN_S
 
     # the scripts command speeds, whatever action the scenario's agent has
     cfg = dataclasses.replace(cfg, agent=dataclasses.replace(cfg.agent, action="accel"))

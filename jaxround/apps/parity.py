@@ -5,7 +5,7 @@ the JAX environment (one vmapped, jitted batch), with the AVs driven the same
 way in both (`jaxround.apps.drivers`: uncontrolled, a scripted controller or an
 exported policy), and compares the metrics and each vehicle's crossing time.
 Both simulators run until every scheduled vehicle has left, or the same cap
-(the demand horizon plus `sumo_export.runner.DRAIN_S`), reported with the
+(the demand horizon plus `jaxround.scenario.config.DRAIN_S`), reported with the
 vehicles still inside at the cap.
 """
 
@@ -120,7 +120,8 @@ def parity_report(
     Raises:
         ValueError: a bad controller spec, before anything runs.
     """
-    from sumo_export.runner import DRAIN_S, run_many
+    from jaxround.scenario.config import DRAIN_S
+    from sumo_export.runner import run_many
 
     driver = parse_driver(controller)
     cfg = cfg.with_overrides(penetration=penetration)

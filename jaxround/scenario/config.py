@@ -194,6 +194,11 @@ class SimulationConfig:
             )
 
 
+#: Simulated seconds after the demand horizon that parity and evaluation give
+#: the last vehicles to leave, in both simulators (the cap they report).
+DRAIN_S = 1800.0
+
+
 #: Observers of the AV policy (`jaxround.envs.observe`).
 OBSERVERS = ("paper", "rich")
 #: The AVs' rewards (`jaxround.envs.reward`).
@@ -359,6 +364,7 @@ def config_from_dict(data: Any) -> ScenarioConfig:
 
 __all__ = [
     "AgentConfig",
+    "DRAIN_S",
     "ConfigError",
     "DemandConfig",
     "DriverConfig",

@@ -20,6 +20,7 @@ from agents.run import train_to_dir
 from agents.run.algorithms import CSV_COLUMNS
 from agents.run.metrics_csv import read_csv
 from jaxround.apps.cli.main import main
+from jaxround.scenario.config import DRAIN_S, load_config
 from tests.conftest import builtin_dict, quick_compilation
 from tests.unit.test_ppo import tiny_config
 
@@ -159,6 +160,9 @@ def test_evaluate_json(
     assert (out / "evaluation.json").exists()
     assert (out / "jax_policy_table3.md").exists()
     assert report["max_vehicles"] == 16 and report["jax_slot_overflow"] == 0
+    # every run went on until its vehicles had left, as in SUMO, within the cap
+    horizon = load_config(scenario).demand.duration_s
+    assert report["cap_s"] == horizon + DRAIN_S and report["jax_not_arrived"] == 0
 
 
 def test_evaluate_refuses(
