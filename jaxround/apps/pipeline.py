@@ -51,7 +51,9 @@ def evaluate_everywhere(
         ``{"scenario", "seeds", "policy", "sumo": {label: M},
         "sumo_uncontrolled": {label: M}, "jax": {label: M},
         "jax_uncontrolled": {label: M}, "max_vehicles": JAX's slots,
-        "jax_slot_overflow": vehicle-steps, "comparison": {...}, "tables"}`` with
+        "jax_slot_overflow": vehicle-steps, "cap_s": the longest a JAX run
+        went on, "jax_not_arrived": vehicles not out by then, "comparison":
+        {...}, "tables"}`` with
         M as `jaxround.analysis.metrics.class_metrics` (means over seeds) plus the
         safety counters, and "comparison" as `compare_with_uncontrolled`;
         also written to ``out/evaluation.json``.
@@ -92,6 +94,8 @@ def evaluate_everywhere(
         "jax_uncontrolled": by_label(jax_eval["results"]["uncontrolled"]),
         "max_vehicles": jax_eval["max_vehicles"],
         "jax_slot_overflow": jax_eval["jax_slot_overflow"],
+        "cap_s": jax_eval["cap_s"],
+        "jax_not_arrived": jax_eval["jax_not_arrived"],
         "comparison": compare_with_uncontrolled(
             {"sumo": sumo_records, "jax": jax_eval["records"]}
         ),

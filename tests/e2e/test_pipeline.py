@@ -71,6 +71,7 @@ def test_main_job_writes_every_result(finished_run: Path) -> None:
     assert results["training"]["updates"] == 2
     # the JAX evaluation's slots: the road's (Milan's network), none overflowed
     assert results["max_vehicles"] == 76 and results["jax_slot_overflow"] == 0
+    assert results["jax_not_arrived"] == 0 and results["cap_s"] > 0
     for name in (
         "train/policy.npz",
         "train/policy.json",
