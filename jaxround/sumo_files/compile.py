@@ -1,15 +1,10 @@
 """Compile a SUMO roundabout network (`.net.xml`) into the core's arrays
-(`jaxround.core.network.CompiledNetwork`).
+(`jaxround.core.network.CompiledNetwork`, whose docstring says what they hold).
 
 The JAX environment never holds a second, hand-written geometry: everything it
-knows about the road comes from the same `.net.xml` that SUMO runs.
-
-Each route (origin leg, exit leg) is a sequence of lanes, SUMO's internal
-junction lanes included. A vehicle's state is its route and its position along
-that route (front bumper, metres from the start of the route's first lane).
-To find leaders across routes, every lane has an offset along every route
-that drives it (nan where it does not); a vehicle on an internal lane that
-merges into a route's next lane is projected onto that route through the merge.
+knows about the road comes from the same `.net.xml` that SUMO runs. Lane
+shapes give the merge and divergence geometry; the ids of the edges are
+`jaxround.scenario.edges`'.
 """
 
 from __future__ import annotations
