@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from jaxround.apps.cli.arguments import UsageError, fresh_output_dir
 from jaxround.study.settings import (
     MAX_PARTICIPANTS_LIMIT,
     MIN_CONNECT_TIMEOUT_S,
@@ -18,13 +19,6 @@ from jaxround.study.settings import (
 
 if TYPE_CHECKING:
     from jaxround.study.storage import StudyDatabase
-
-
-def _usage_error(message: str) -> Exception:
-    """`cli.arguments.UsageError`, imported late (the CLI imports this module)."""
-    from jaxround.apps.cli.arguments import UsageError
-
-    return UsageError(message)
 
 
 def _participants(text: str) -> int:
@@ -76,7 +70,7 @@ def cmd_serve(args: argparse.Namespace) -> None:
         database = StudyDatabase(args.db)
         _check_port(args.host, args.port)
     except (ValueError, FileNotFoundError, OSError) as err:
-        raise _usage_error(str(err)) from None
+        raise UsageError(str(err)) from None
     import uvicorn
 
     from jaxround.study.protocol import MAX_MESSAGE_BYTES
@@ -117,15 +111,14 @@ def _database(path: Path) -> StudyDatabase:
     from jaxround.study.storage import StudyDatabase
 
     if not path.is_file():
-        raise _usage_error(f"--db {path}: no such file")
+        raise UsageError(f"--db {path}: no such file")
     try:
         return StudyDatabase(path)
     except ValueError as err:
-        raise _usage_error(str(err)) from None
+        raise UsageError(str(err)) from None
 
 
 def cmd_export(args: argparse.Namespace) -> None:
-    from jaxround.apps.cli.arguments import fresh_output_dir
     from jaxround.study.storage import export_names
 
     database = _database(args.db)
@@ -135,7 +128,6 @@ def cmd_export(args: argparse.Namespace) -> None:
 
 
 def cmd_report(args: argparse.Namespace) -> None:
-    from jaxround.apps.cli.arguments import fresh_output_dir
     from jaxround.study.report import REPORT_FILES, tables_markdown, write_report
 
     database = _database(args.db)
@@ -158,7 +150,7 @@ def cmd_load(args: argparse.Namespace) -> None:
             warmup_s=args.warmup_s,
         )
     except (ValueError, RuntimeError) as err:
-        raise _usage_error(str(err)) from None
+        raise UsageError(str(err)) from None
     if args.json:
         json.dump(figures, sys.stdout, indent=2)
         sys.stdout.write("\n")
