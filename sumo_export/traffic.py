@@ -29,7 +29,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxround.core.state import EnvParams, EnvState
+from jaxround.core.params import EnvParams
+from jaxround.core.state import EnvState
 from jaxround.envs.observe import OBSERVATION_SIZES
 from jaxround.envs.roundabout import RoundaboutEnv, make
 from jaxround.scenario.config import ScenarioConfig

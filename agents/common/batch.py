@@ -27,7 +27,8 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from agents.common import networks
-from jaxround.core.state import EnvParams, EnvState
+from jaxround.core.params import EnvParams
+from jaxround.core.state import EnvState
 from jaxround.envs.roundabout import make
 from jaxround.envs.wrappers import auto_reset
 from jaxround.scenario.config import ConfigError
@@ -150,7 +151,7 @@ class BatchTrainer:
         shares = [config.penetrations[i % len(config.penetrations)] for i in range(b)]
         self.env_params: EnvParams = jax.tree.map(
             lambda x: jnp.broadcast_to(x, (b, *jnp.shape(x))), params
-        ).replace(penetration=jnp.asarray(shares, jnp.float32))
+        ).with_penetration(shares)
         obs, _ = jax.eval_shape(self.env.reset, jax.random.PRNGKey(0), params)
         self.obs_size = int(obs.shape[-1])
         self._env_step = jax.vmap(self.env.step_env)

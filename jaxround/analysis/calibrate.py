@@ -35,7 +35,8 @@ from jaxround.analysis.survey import (
     slot_queues,
     survey_steps,
 )
-from jaxround.core.state import EnvParams, Schedule
+from jaxround.core.params import EnvParams
+from jaxround.core.state import Schedule
 from jaxround.envs.roundabout import RoundaboutEnv
 from jaxround.scenario.config import ConfigError
 from jaxround.scenario.schedule import make_schedule
@@ -109,7 +110,9 @@ class Problem:
         lo, hi = np.log(BOUNDS[0]), np.log(BOUNDS[1])
         values = jnp.asarray(self.reference) * jnp.exp(jnp.clip(theta, lo, hi))
         fields = {n: values[i] for i, n in enumerate(self.names)}
-        return self.params.replace(relax_temperature=jnp.float32(temperature), **fields)
+        return self.params.with_human(**fields).replace(
+            relax_temperature=jnp.float32(temperature)
+        )
 
     def loss(self, theta: jax.Array, temperature: float) -> jax.Array:
         """Scaled squared error of the queue tables, averaged over the runs."""
@@ -155,12 +158,12 @@ def make_problem(
         env.schedule_from_numpy(make_schedule(env.cfg, seed=s, penetration=0.0))
         for s in survey.seeds
     ]
-    params = params.replace(penetration=jnp.float32(0.0))
+    params = params.with_penetration(0.0)
     return Problem(
         env=env,
         params=params,
         names=tuple(names),
-        reference=np.array([float(getattr(params, n)) for n in names]),
+        reference=np.array([float(params.human_number(n)) for n in names]),
         schedules=jax.tree.map(lambda *x: jnp.stack(x), *schedules),
         targets={n: jnp.asarray(getattr(survey, n), jnp.float32) for n in FITTED},
         n_steps=n_steps,

@@ -1,8 +1,8 @@
 """Gradients of expected episode metrics with respect to the demand's shape.
 
 The demand reaches an episode only through its drawn schedule: which leg
-each vehicle enters from (`EnvParams.origin_share`) and which it leaves by
-(`EnvParams.od`, row by origin) are discrete draws, so no path through the
+each vehicle enters from (`EnvParams.demand.origin_share`) and which it leaves by
+(`EnvParams.demand.od`, row by origin) are discrete draws, so no path through the
 dynamics carries their gradient. What has a gradient is the *expected*
 metric over schedules, and the likelihood ratio (score function) gives it:
 
@@ -32,7 +32,8 @@ from collections.abc import Callable
 import jax
 import jax.numpy as jnp
 
-from jaxround.core.state import EnvParams, EnvState, Schedule
+from jaxround.core.params import EnvParams
+from jaxround.core.state import EnvState, Schedule
 from jaxround.envs.rollout import Policy, run_episode
 from jaxround.envs.roundabout import RoundaboutEnv
 
@@ -58,9 +59,9 @@ def schedule_log_prob(
     """
     origin = schedule.origin
     dest = env.route_destination[schedule.route]
-    share = _drawable(params.origin_share)
+    share = _drawable(params.demand.origin_share)
     share = share / jnp.sum(share)
-    rows = _drawable(params.od)
+    rows = _drawable(params.demand.od)
     rows = rows / jnp.sum(rows, axis=1, keepdims=True)
     return jnp.sum(jnp.log(share[origin]) + jnp.log(rows[origin, dest]))
 

@@ -16,7 +16,8 @@ import jax
 import jax.numpy as jnp
 
 from jaxround.analysis.render import draw_network, draw_vehicles, n_frames, state_at
-from jaxround.core.state import EnvParams, EnvState, Schedule
+from jaxround.core.params import EnvParams
+from jaxround.core.state import EnvState, Schedule
 from jaxround.envs.rollout import Policy, uncontrolled_policy
 from jaxround.envs.roundabout import RoundaboutEnv, make
 
@@ -179,7 +180,7 @@ def render_rollout(
     movie_writer(out, fps)  # an unusable file name fails before the episode runs
     env, params = make(scenario, max_vehicles=max_vehicles)
     if penetration is not None:
-        params = params.replace(penetration=jnp.float32(penetration))
+        params = params.with_penetration(penetration)
     n_steps = max(every, int(round(seconds / env.dt)))
     states = rollout_states(env, params, jax.random.PRNGKey(seed), n_steps, every=every)
     return animate(env, states, out, fps=fps)

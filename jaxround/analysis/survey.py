@@ -29,8 +29,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxround.core.dynamics import ARRIVAL_EPS
+from jaxround.core.params import EnvParams
 from jaxround.core.relax import soft_step
-from jaxround.core.state import EnvParams, EnvState, Schedule
+from jaxround.core.state import EnvState, Schedule
 from jaxround.envs.queues import queued_per_leg
 from jaxround.envs.rollout import Policy, uncontrolled_policy
 from jaxround.envs.roundabout import RoundaboutEnv
@@ -297,10 +298,10 @@ def jax_survey(
 
 def driver_numbers(params: EnvParams) -> dict[str, float]:
     """The human drivers' calibrated numbers of `params`, plain floats."""
-    return {name: float(getattr(params, name)) for name in CALIBRATABLE}
+    return {name: float(params.human_number(name)) for name in CALIBRATABLE}
 
 
-#: The driver parameters `jaxround calibrate` can fit (EnvParams field names).
+#: The driver parameters `jaxround calibrate` can fit (`EnvParams.with_human`).
 CALIBRATABLE = (
     "accel",
     "decel",

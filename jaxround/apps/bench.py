@@ -57,7 +57,8 @@ from jaxround.apps.bench_report import (
     machine_info,
 )
 from jaxround.apps.bench_sumo import run_sumo_parallel, run_sumo_window
-from jaxround.core.state import EnvParams, Schedule
+from jaxround.core.params import EnvParams
+from jaxround.core.state import Schedule
 from jaxround.envs.roundabout import RoundaboutEnv, make
 from jaxround.scenario.config import ScenarioConfig
 from jaxround.scenario.schedule import make_schedule

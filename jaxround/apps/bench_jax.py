@@ -23,7 +23,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxround.apps.bare_ring import compiled_flops
-from jaxround.core.state import EnvParams, EnvState, Schedule
+from jaxround.core.params import EnvParams
+from jaxround.core.state import EnvState, Schedule
 from jaxround.envs.roundabout import RoundaboutEnv
 from jaxround.scenario.schedule import make_schedule
 

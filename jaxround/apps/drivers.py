@@ -22,7 +22,8 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from jaxround.core.state import EnvParams, EnvState
+from jaxround.core.params import EnvParams
+from jaxround.core.state import EnvState
 from jaxround.envs import observe
 from jaxround.envs.rollout import Policy, uncontrolled_policy
 from jaxround.envs.roundabout import RoundaboutEnv

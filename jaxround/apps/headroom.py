@@ -193,9 +193,8 @@ def run_jax(
     jobs = []  # (label, params, schedule, rule, value)
     for variant in rows:
         av = dict(variant.av)
-        params = base.replace(
-            **{f"av_{k}": jnp.float32(v) for k, v in av.items() if k != "speed_factor"}
-        )
+        own = {k: jnp.float32(v) for k, v in av.items() if k != "speed_factor"}
+        params = base.replace(av=base.av.replace(**own))
         rule, value = (
             rule_and_value(variant.controller) if variant.controller else UNCONTROLLED
         )

@@ -31,16 +31,16 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from jaxround.core.state import EnvParams
+from jaxround.core.params import CarFollowing
 
 
-def min_next_speed(speed: jax.Array, params: EnvParams, dt: float) -> jax.Array:
+def min_next_speed(speed: jax.Array, params: CarFollowing, dt: float) -> jax.Array:
     """``MSCFModel_IDM::minNextSpeed`` (Euler update), float (...)."""
     decel = jnp.maximum(params.decel, jnp.minimum(params.emergency_decel, 1.5))
     return jnp.maximum(speed - decel * dt, 0.0)
 
 
-def max_next_speed(speed: jax.Array, params: EnvParams, dt: float) -> jax.Array:
+def max_next_speed(speed: jax.Array, params: CarFollowing, dt: float) -> jax.Array:
     """``MSCFModel::maxNextSpeed``: ``min(v + accel * dt, maxSpeed)``, float (...)."""
     return jnp.minimum(speed + params.accel * dt, params.max_speed)
 
@@ -66,7 +66,7 @@ def influence_speed(
 
 
 def commanded_speed(
-    speed: jax.Array, accel: jax.Array, params: EnvParams, dt: float
+    speed: jax.Array, accel: jax.Array, params: CarFollowing, dt: float
 ) -> jax.Array:
     """The speed a controller commands for an acceleration, float (...).
 

@@ -33,8 +33,9 @@ from jaxround.core.neighbours import (
     on_through_lanes,
     rearmost_on_lanes,
 )
+from jaxround.core.params import CarFollowing
 from jaxround.core.relax import blend, soft_or
-from jaxround.core.state import EnvParams, Registrations
+from jaxround.core.state import Registrations
 
 #: Speed below which SUMO counts a vehicle as waiting / halting (m/s).
 HALTING_SPEED = 0.1
@@ -48,7 +49,7 @@ ARRIVAL_EPS = 0.1
 
 def link_leader_speed(
     net: NetArrays,
-    params: EnvParams,
+    params: CarFollowing,
     route: jax.Array,
     pos: jax.Array,
     speed: jax.Array,
@@ -99,7 +100,7 @@ def link_leader_speed(
 
 def planned_speed(
     net: NetArrays,
-    params: EnvParams,
+    params: CarFollowing,
     route: jax.Array,
     pos: jax.Array,
     speed: jax.Array,

@@ -11,7 +11,7 @@ from jax import lax
 
 from jaxround.core import idm
 from jaxround.core.junction import brake_gap
-from jaxround.core.state import EnvParams
+from jaxround.core.params import CarFollowing
 
 #: A blocked vehicle stops this far before its stop line (m).
 STOP_OFFSET = 0.1
@@ -22,7 +22,7 @@ def insertion_speed(
     v0: jax.Array,
     v_leader: jax.Array,
     gap: jax.Array,
-    params: EnvParams,
+    params: CarFollowing,
     dt: float,
     n_substeps: int,
     iterations: int = 12,
@@ -73,7 +73,7 @@ def insertion_stop_speed(
     v: jax.Array,
     v0: jax.Array,
     seen: jax.Array,
-    params: EnvParams,
+    params: CarFollowing,
     dt: float,
     n_substeps: int,
     iterations: int = 12,

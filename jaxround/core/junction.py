@@ -11,9 +11,10 @@ import jax
 import jax.numpy as jnp
 
 from jaxround.core.geometry import NetArrays, internal_done, locate, normal_done
+from jaxround.core.params import CarFollowing
 from jaxround.core.relax import blend, soft_any, soft_or, soft_step
 from jaxround.core.safe_math import finite_or, safe_sqrt
-from jaxround.core.state import EnvParams, Registrations
+from jaxround.core.state import Registrations
 
 
 def minimal_arrival_time(
@@ -56,7 +57,7 @@ class Approach(NamedTuple):
 
 def entry_approach(
     net: NetArrays,
-    params: EnvParams,
+    params: CarFollowing,
     route: jax.Array,
     pos: jax.Array,
     speed: jax.Array,
@@ -106,7 +107,7 @@ def entry_approach(
 
 def register(
     net: NetArrays,
-    params: EnvParams,
+    params: CarFollowing,
     route: jax.Array,
     pos: jax.Array,
     speed: jax.Array,
@@ -203,7 +204,7 @@ def register(
 
 def entry_blocked(
     net: NetArrays,
-    params: EnvParams,
+    params: CarFollowing,
     route: jax.Array,
     ego: Approach,
     regs: Registrations,
@@ -237,7 +238,7 @@ def entry_blocked(
 
 def entry_blocked_weight(
     net: NetArrays,
-    params: EnvParams,
+    params: CarFollowing,
     route: jax.Array,
     ego: Approach,
     regs: Registrations,

@@ -1,10 +1,9 @@
-"""The three kinds of settings of the JAX environment: traced params, state, statics.
+"""The state of the JAX environment: fixed-size arrays, with `validate()`.
 
-- `EnvParams`: continuous numbers a `vmap` may sweep (driver parameters,
-  demand shares, penetration, reward weights).
-- `EnvState`: fixed-size arrays: M vehicle slots with an `active` mask, the N
-  vehicles of the episode's departure schedule, and running statistics.
-- Static settings (max_vehicles, dt, the compiled network) live on the
+- `EnvState`: M vehicle slots with an `active` mask, the N vehicles of the
+  episode's departure `Schedule`, and running statistics.
+- Traced numbers a `vmap` may sweep are `jaxround.core.params.EnvParams`;
+  static settings (max_vehicles, dt, the compiled network) live on the
   environment object (`jaxround.envs.roundabout.RoundaboutEnv`), never traced.
 """
 
@@ -15,132 +14,6 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 from flax import struct
-
-from jaxround.scenario.config import ScenarioConfig
-
-#: The driver numbers in which AVs and human drivers differ.
-PER_VEHICLE_FIELDS = ("accel", "tau", "jm_timegap_minor", "impatience")
-
-
-@struct.dataclass
-class EnvParams:
-    """Traced parameters. Scalars unless a shape is given.
-
-    Attributes:
-        accel: maximum acceleration a (IDM), m/s^2.
-        decel: comfortable deceleration b, m/s^2.
-        emergency_decel: the bound on braking, m/s^2.
-        tau: desired time headway T, s.
-        min_gap: standstill gap s0, m.
-        delta: IDM acceleration exponent.
-        length: vehicle length, m.
-        max_speed: vehicle maximum speed, m/s.
-        jm_timegap_minor: gap an entering vehicle needs before a ring vehicle, s.
-        impatience: base impatience, 0..1.
-        time_to_impatience: waiting seconds that add 1 to the impatience.
-        speed_dev: std of the desired-speed factor (drawn per vehicle at reset).
-        penetration: share of AVs drawn at reset.
-        origin_share: (n_legs,) share of vehicles entering at each leg.
-        od: (n_legs, n_legs) exit shares per origin.
-        duration_s: demand horizon over which the N departures are spread.
-        av_accel, av_tau, av_jm_timegap_minor, av_impatience, av_speed_dev:
-            the AVs' own values of these (their vType); the other driver
-            numbers are shared by both classes.
-        reward_speed_weight: AV reward: weight of the desired-velocity term.
-        reward_pollution_weight: AV reward: weight of the pollution term.
-        reward_time_penalty: AV reward: subtracted every step in the network.
-        reward_time_weight: system reward: cost of a vehicle-second, per s.
-        reward_co2_weight: system reward: cost of a gram of CO2, per g.
-        relax_temperature: 0 runs the exact (SUMO-parity) dynamics; above 0,
-            hard decisions become smooth so that gradients flow through them
-            (`jaxround.core.relax`). Margins are divided by it in their own units
-            (s for gap acceptance, m/s for halting, m for arrival).
-
-    `for_vehicles(is_av)` gives the per-vehicle view the dynamics use.
-    """
-
-    accel: jax.Array
-    decel: jax.Array
-    emergency_decel: jax.Array
-    tau: jax.Array
-    min_gap: jax.Array
-    delta: jax.Array
-    length: jax.Array
-    max_speed: jax.Array
-    jm_timegap_minor: jax.Array
-    impatience: jax.Array
-    time_to_impatience: jax.Array
-    speed_dev: jax.Array
-    penetration: jax.Array
-    origin_share: jax.Array
-    od: jax.Array
-    duration_s: jax.Array
-    av_accel: jax.Array
-    av_tau: jax.Array
-    av_jm_timegap_minor: jax.Array
-    av_impatience: jax.Array
-    av_speed_dev: jax.Array
-    reward_speed_weight: jax.Array
-    reward_pollution_weight: jax.Array
-    reward_time_penalty: jax.Array
-    reward_time_weight: jax.Array
-    reward_co2_weight: jax.Array
-    relax_temperature: jax.Array
-
-    @classmethod
-    def from_config(cls, cfg: ScenarioConfig) -> EnvParams:
-        """The traced numbers of a scenario (human drivers' vType)."""
-        hv, av = cfg.drivers.hv, cfg.drivers.av
-        f = jnp.float32
-        return cls(
-            accel=f(hv.accel),
-            decel=f(hv.decel),
-            emergency_decel=f(hv.emergency_decel),
-            tau=f(hv.tau),
-            min_gap=f(hv.min_gap),
-            delta=f(hv.delta),
-            length=f(hv.length),
-            max_speed=f(hv.max_speed),
-            jm_timegap_minor=f(hv.jm_timegap_minor),
-            impatience=f(hv.impatience),
-            time_to_impatience=f(180.0),
-            speed_dev=f(hv.speed_dev),
-            penetration=f(cfg.simulation.penetration),
-            origin_share=jnp.asarray(cfg.demand.origin_share, jnp.float32),
-            od=jnp.asarray(cfg.demand.od, jnp.float32),
-            duration_s=f(cfg.demand.duration_s),
-            av_accel=f(av.accel),
-            av_tau=f(av.tau),
-            av_jm_timegap_minor=f(av.jm_timegap_minor),
-            av_impatience=f(av.impatience),
-            av_speed_dev=f(av.speed_dev),
-            reward_speed_weight=f(cfg.agent.speed_weight),
-            reward_pollution_weight=f(cfg.agent.pollution_weight),
-            reward_time_penalty=f(cfg.agent.time_penalty),
-            reward_time_weight=f(cfg.agent.time_weight),
-            reward_co2_weight=f(cfg.agent.co2_weight),
-            relax_temperature=f(0.0),
-        )
-
-    def for_vehicles(self, is_av: jax.Array) -> EnvParams:
-        """The parameters each vehicle drives with: accel, tau, jm_timegap_minor
-        and impatience take the shape of `is_av` (their class's values)."""
-        return self.replace(
-            **{
-                name: jnp.where(is_av, getattr(self, "av_" + name), getattr(self, name))
-                for name in PER_VEHICLE_FIELDS
-            }
-        )
-
-    def columns(self) -> EnvParams:
-        """Per-vehicle fields (M,) as (M, 1), to broadcast against (M, K) arrays."""
-        return self.replace(
-            **{
-                name: getattr(self, name)[..., None]
-                for name in PER_VEHICLE_FIELDS
-                if jnp.ndim(getattr(self, name)) >= 1
-            }
-        )
 
 
 def _check(fields: dict[str, tuple[Any, tuple[int, ...], str]], where: str) -> None:

@@ -8,11 +8,12 @@ import jax
 import jax.numpy as jnp
 
 from jaxround.core import command as traci
-from jaxround.core.state import EnvParams, EnvState
+from jaxround.core.params import CarFollowing
+from jaxround.core.state import EnvState
 
 
 def command_from_action(
-    state: EnvState, action: jax.Array, params: EnvParams, dt: float
+    state: EnvState, action: jax.Array, params: CarFollowing, dt: float
 ) -> jax.Array:
     """Each slot's speed command for this step, float (M,), NaN for none.
 

@@ -26,7 +26,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from jaxround.core.state import EnvParams
+from jaxround.core.params import CarFollowing
 
 #: tau is scaled by 2 ** -u: at most halved or doubled.
 TAU_RANGE = 2.0
@@ -50,7 +50,9 @@ def assertive_impatience(impatience0: jax.Array, u: jax.Array) -> jax.Array:
     return jnp.clip(impatience0 + jnp.maximum(u, 0.0), 0.0, 1.0)
 
 
-def retuned_params(params: EnvParams, raw: jax.Array, is_agent: jax.Array) -> EnvParams:
+def retuned_params(
+    params: CarFollowing, raw: jax.Array, is_agent: jax.Array
+) -> CarFollowing:
     """Per-vehicle parameters with each AV's tau and impatience retuned.
 
     Args:

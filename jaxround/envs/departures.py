@@ -12,8 +12,9 @@ import jax.numpy as jnp
 
 from jaxround.core import dynamics, geometry, insertion
 from jaxround.core.geometry import NetArrays
+from jaxround.core.params import EnvParams
 from jaxround.core.reductions import first_min
-from jaxround.core.state import EnvParams, EnvState
+from jaxround.core.state import EnvState
 
 
 def insert_departures(
@@ -50,17 +51,18 @@ def insert_departures(
     has = cand < n
     c = jnp.minimum(cand, n - 1)
     route = s.route[c]  # (G,)
-    front = jnp.full(g, p.length + dynamics.DEPART_OFFSET)
+    front = jnp.full(g, p.vehicle.length + dynamics.DEPART_OFFSET)
     # the nearest vehicle ahead of the new one's front, along its route
-    back = jnp.maximum(pos - p.length, 0.0)
+    back = jnp.maximum(pos - p.vehicle.length, 0.0)
     _, lane, pos_on_lane = geometry.locate(net, state.route, back)
     proj = geometry.project(net, route, lane, pos_on_lane)  # (G, M) backs
     ahead = jnp.where(state.active[None, :], proj - front[:, None], jnp.nan)
-    ahead = jnp.where(jnp.isnan(ahead) | (ahead < -p.length), jnp.inf, ahead)
+    ahead = jnp.where(jnp.isnan(ahead) | (ahead < -p.vehicle.length), jnp.inf, ahead)
     nearest, j = first_min(ahead, axis=1)
-    gap = nearest - p.min_gap  # SUMO's gap2pred
+    gap = nearest - p.vehicle.min_gap  # SUMO's gap2pred
     v_lane = jnp.minimum(
-        net.lane_speed[net.route_lanes[route, 0]] * s.speed_factor[c], p.max_speed
+        net.lane_speed[net.route_lanes[route, 0]] * s.speed_factor[c],
+        p.vehicle.max_speed,
     )
     free_lane = jnp.isinf(gap)
     # SUMO lowers the speed first for the vehicle ahead, then for the stop

@@ -27,8 +27,9 @@ import jax.numpy as jnp
 
 from jaxround.core.geometry import NetArrays, leaders, locate, project
 from jaxround.core.neighbours import soonest_ring_arrival
+from jaxround.core.params import EnvParams
 from jaxround.core.reductions import first_min
-from jaxround.core.state import EnvParams, EnvState
+from jaxround.core.state import EnvState
 
 #: Position of a missing neighbour (positions are otherwise in [0, 1]).
 MISSING = -1.0
@@ -52,14 +53,14 @@ def paper_observation(
         and float (M,) bumper-to-bumper gap to it, for the rich observer.
     """
     x_max = jnp.max(net.route_length)
-    a_max = params.av_accel
+    a_max = params.av.accel
     _, lane, pos_on_lane = locate(net, state.route, state.pos)
     routes = jnp.arange(net.route_length.shape[0])
     # every front along every route (R, M), read along each vehicle's route
     front = project(net, routes, lane, pos_on_lane)[state.route]  # (M, M)
-    leader, gap = leaders(front, state.pos, state.active, params.length)
+    leader, gap = leaders(front, state.pos, state.active, params.vehicle.length)
     # the follower: the nearest front behind this vehicle's back on its route
-    behind = state.pos[:, None] - params.length - front  # (M, M)
+    behind = state.pos[:, None] - params.vehicle.length - front  # (M, M)
     m = state.pos.shape[0]
     others = jnp.arange(m)[None, :] != jnp.arange(m)[:, None]
     ok = state.active[None, :] & others & (behind >= 0)  # nan (off the route): no
@@ -68,8 +69,10 @@ def paper_observation(
     has_leader = leader >= 0
     lead = jnp.maximum(leader, 0)
     a = state.accel
-    x_front = jnp.where(has_leader, state.pos + gap + params.length, 0.0)
-    x_back = jnp.where(has_follower, state.pos - params.length - nearest_behind, 0.0)
+    x_front = jnp.where(has_leader, state.pos + gap + params.vehicle.length, 0.0)
+    x_back = jnp.where(
+        has_follower, state.pos - params.vehicle.length - nearest_behind, 0.0
+    )
     none = jnp.zeros(m)
     obs = jnp.stack(
         [
@@ -121,7 +124,7 @@ def rich_observation(
             jnp.clip(to_line / DISTANCE_SCALE, -1.0, 1.0),
             jnp.clip(soonest / RING_HORIZON_S, 0.0, 1.0),
             legs_to_exit / g,
-            jnp.minimum(state.waiting_s / params.time_to_impatience, 1.0),
+            jnp.minimum(state.waiting_s / params.vehicle.time_to_impatience, 1.0),
         ],
         axis=-1,
     )

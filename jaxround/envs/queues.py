@@ -8,8 +8,9 @@ import jax.numpy as jnp
 
 from jaxround.core import dynamics, geometry
 from jaxround.core.geometry import NetArrays
+from jaxround.core.params import EnvParams
 from jaxround.core.relax import soft_step
-from jaxround.core.state import EnvParams, EnvState
+from jaxround.core.state import EnvState
 
 
 def queued_per_leg(
@@ -35,7 +36,7 @@ def count_queues(
 ) -> EnvState:
     """Queued vehicles per leg: halting on the approach plus waiting to enter."""
     q = queued_per_leg(net, state, t, jnp.float32(0.0))
-    within = t <= params.duration_s + 1e-4
+    within = t <= params.demand.duration_s + 1e-4
     return state.replace(
         queue_sum=state.queue_sum + jnp.where(within, q, 0.0),
         queue_max=jnp.where(within, jnp.maximum(state.queue_max, q), state.queue_max),

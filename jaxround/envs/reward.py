@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxround.core import emissions
-from jaxround.core.state import EnvParams
+from jaxround.core.params import EnvParams
 
 
 def reference_pollution(v_desired: jax.Array) -> jax.Array:
@@ -56,9 +56,9 @@ def av_reward(
     r_v = jnp.maximum(0.0, v_des - jnp.abs(speed - v_des)) / v_des
     p_ref = jnp.maximum(reference_pollution(v_des), 1e-3)
     r_p = jnp.maximum(0.0, p_ref - jnp.abs(co2_rate - p_ref)) / p_ref
-    w_v, w_p = params.reward_speed_weight, params.reward_pollution_weight
+    w_v, w_p = params.reward.speed_weight, params.reward.pollution_weight
     r = (w_v * r_v + w_p * r_p) / (w_v + w_p)
-    return r - params.reward_time_penalty
+    return r - params.reward.time_penalty
 
 
 def system_reward(
@@ -97,8 +97,8 @@ def system_reward(
         co2_step_mg: (M,) CO2 each slot emitted in the step, mg.
         active: bool (M,) slots that held a vehicle in the step.
         agent: bool (M,) slots that held an AV in the step.
-        params: ``reward_time_weight`` (per vehicle-second) and
-            ``reward_co2_weight`` (per g).
+        params: its `reward.time_weight` (per vehicle-second) and
+            `reward.co2_weight` (per g).
         dt: step length, s.
         share: weight of the roundabout's cost, in [0, 1].
 
@@ -108,11 +108,11 @@ def system_reward(
     n_agents = jnp.maximum(jnp.sum(agent), 1)
     co2_g = jnp.where(active, co2_step_mg, 0.0) / 1000.0
     time_cost = (
-        params.reward_time_weight
+        params.reward.time_weight
         * dt
         * (share * n_in_system / n_agents + (1.0 - share))
     )
-    co2_cost = params.reward_co2_weight * (
+    co2_cost = params.reward.co2_weight * (
         share * jnp.sum(co2_g) / n_agents + (1.0 - share) * co2_g
     )
     return jnp.where(agent, -(time_cost + co2_cost), 0.0)

@@ -8,7 +8,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxround.core.state import EnvParams, EnvState, Schedule
+from jaxround.core.params import EnvParams
+from jaxround.core.state import EnvState, Schedule
 from jaxround.envs.roundabout import RoundaboutEnv
 from jaxround.scenario.records import VehicleRecords
 

@@ -23,24 +23,25 @@ import numpy as np
 from jaxround.core import dynamics, emissions, geometry, idm
 from jaxround.core.capacity import resolve_max_vehicles
 from jaxround.core.network import CompiledNetwork
-from jaxround.core.state import EnvParams, EnvState, Registrations, Schedule
+from jaxround.core.params import EnvParams
+from jaxround.core.state import EnvState, Registrations, Schedule
 from jaxround.envs import departures, observe, queues, schedules
 from jaxround.envs.actions import command_from_action
 from jaxround.envs.assertiveness import retuned_params
 from jaxround.envs.reward import av_reward, system_reward
 from jaxround.envs.wrappers import auto_reset
-from jaxround.scenario.config import ConfigError, ScenarioConfig, load_config
+from jaxround.scenario.config import (
+    SHARED_DRIVER_FIELDS,
+    ConfigError,
+    ScenarioConfig,
+    load_config,
+)
 from jaxround.scenario.schedule import Schedule as NumpySchedule
 from jaxround.sumo_files.compile import compile_network
 from jaxround.sumo_files.netconvert import network_file
 
 #: Extra seconds after the demand horizon for the last vehicles to leave.
 DEFAULT_DRAIN_S = 300.0
-#: Driver numbers the JAX environment shares between AVs and human drivers.
-SHARED_DRIVER_FIELDS = (
-    "car_follow_model", "decel", "emergency_decel", "min_gap", "delta", "length",
-    "max_speed",
-)  # fmt: skip
 
 
 class RoundaboutEnv:
@@ -58,12 +59,12 @@ class RoundaboutEnv:
         max_vehicles: int | None = None,
         episode_s: float | None = None,
     ) -> None:
+        check_driver_classes(cfg)
         if network.n_legs != cfg.n_legs:
             raise ValueError(
                 f"network has {network.n_legs} legs, config {cfg.name!r} "
                 f"has {cfg.n_legs}"
             )
-        check_driver_classes(cfg)
         self.cfg = cfg
         self.network = network
         self.net = geometry.NetArrays.from_network(network)
@@ -237,7 +238,9 @@ class RoundaboutEnv:
             v_next < dynamics.HALTING_SPEED, state.waiting_s + self.dt, 0.0
         )
         _, lane, _ = geometry.locate(net, state.route, state.pos)
-        v_desired = jnp.minimum(net.lane_speed[lane] * state.speed_factor, p.max_speed)
+        v_desired = jnp.minimum(
+            net.lane_speed[lane] * state.speed_factor, p.vehicle.max_speed
+        )
         if self.cfg.agent.reward == "system":
             pending = ~state.inserted & (state.schedule.depart_s <= t + 1e-4)
             n_in_system = jnp.sum(state.active) + jnp.sum(pending)
@@ -311,7 +314,7 @@ def check_driver_classes(cfg: ScenarioConfig) -> None:
     """The JAX environment drives both classes with the IDM and shares some of
     their numbers; a config that differs there gets a clear error."""
     hv, av = cfg.drivers.hv, cfg.drivers.av
-    for name in SHARED_DRIVER_FIELDS:
+    for name in ("car_follow_model", *SHARED_DRIVER_FIELDS):
         if getattr(hv, name) != getattr(av, name):
             raise ConfigError(
                 f"drivers.av.{name}: {getattr(av, name)!r} differs from "

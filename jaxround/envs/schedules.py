@@ -9,8 +9,9 @@ import jax
 import jax.numpy as jnp
 
 from jaxround.core.network import CompiledNetwork
+from jaxround.core.params import EnvParams
 from jaxround.core.sampling import inverse_cdf, smallest_k, sorted_uniform
-from jaxround.core.state import EnvParams, Schedule
+from jaxround.core.state import Schedule
 from jaxround.scenario.config import ScenarioConfig
 from jaxround.scenario.schedule import Schedule as NumpySchedule
 
@@ -55,23 +56,23 @@ def draw(
     """
     n = n_schedule
     k_t, k_o, k_d, k_s, k_av = jax.random.split(key, 5)
-    t = sorted_uniform(k_t, n, params.duration_s)
+    t = sorted_uniform(k_t, n, params.demand.duration_s)
     depart = jnp.floor(t / dt) * dt
     origin = inverse_cdf(
-        k_o, jnp.broadcast_to(params.origin_share, (n, network.n_legs))
+        k_o, jnp.broadcast_to(params.demand.origin_share, (n, network.n_legs))
     )
-    dest = inverse_cdf(k_d, params.od[origin])
+    dest = inverse_cdf(k_d, params.demand.od[origin])
     z = jax.random.truncated_normal(
-        k_s, -0.8 / jnp.maximum(params.speed_dev, 1e-6),
-        1.0 / jnp.maximum(params.speed_dev, 1e-6), (n,),
+        k_s, -0.8 / jnp.maximum(params.human.speed_dev, 1e-6),
+        1.0 / jnp.maximum(params.human.speed_dev, 1e-6), (n,),
     )  # fmt: skip
-    speed_factor = jnp.round((1.0 + params.speed_dev * z) * 1e4) / 1e4
+    speed_factor = jnp.round((1.0 + params.human.speed_dev * z) * 1e4) / 1e4
     # round(p * N) with halves up, as `n_av_at`; the margin absorbs float32
-    n_av = jnp.floor(params.penetration * n + 0.5 + 1e-3).astype(jnp.int32)
+    n_av = jnp.floor(params.demand.penetration * n + 0.5 + 1e-3).astype(jnp.int32)
     route = jnp.asarray(network.route_index)[origin, dest]
     is_av = smallest_k(k_av, n, n_av)
     # as `Schedule.class_speed_factors`: AVs scale their deviation from 1
-    scale = params.av_speed_dev / jnp.maximum(params.speed_dev, 1e-6)
+    scale = params.av.speed_dev / jnp.maximum(params.human.speed_dev, 1e-6)
     av_factor = jnp.round((1.0 + (speed_factor - 1.0) * scale) * 1e4) / 1e4
     return Schedule(
         depart_s=depart.astype(jnp.float32),

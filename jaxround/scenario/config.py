@@ -164,6 +164,13 @@ class DriverConfig:
             )
 
 
+#: The vType numbers the JAX environment shares between the two classes (one
+#: vehicle body and braking model, `jaxround.core.params.VehicleParams`); it
+#: refuses a scenario whose AVs differ in them (SUMO alone accepts it).
+SHARED_DRIVER_FIELDS = ("decel", "emergency_decel", "min_gap", "delta", "length",
+                        "max_speed")  # fmt: skip
+
+
 @dataclass(frozen=True)
 class DriversConfig:
     """Vehicle types of the two classes."""
@@ -289,16 +296,18 @@ class ScenarioConfig:
 
     def with_human_drivers(self, **values: float) -> ScenarioConfig:
         """A validated copy with these human-driver (`drivers.hv`) numbers
-        replaced, e.g. ``with_human_drivers(accel=2.0, tau=1.1)``."""
+        replaced, e.g. ``with_human_drivers(accel=2.0, tau=1.1)``. Numbers of
+        `SHARED_DRIVER_FIELDS` change for the AVs too."""
         unknown = set(values) - {f.name for f in dataclasses.fields(DriverConfig)}
         if unknown:
             raise ConfigError(f"drivers.hv: unknown field(s) {sorted(unknown)}")
-        hv = dataclasses.replace(
-            self.drivers.hv, **{k: float(v) for k, v in values.items()}
+        numbers = {k: float(v) for k, v in values.items()}
+        shared = {k: v for k, v in numbers.items() if k in SHARED_DRIVER_FIELDS}
+        drivers = DriversConfig(
+            hv=dataclasses.replace(self.drivers.hv, **numbers),
+            av=dataclasses.replace(self.drivers.av, **shared),
         )
-        new = dataclasses.replace(
-            self, drivers=dataclasses.replace(self.drivers, hv=hv)
-        )
+        new = dataclasses.replace(self, drivers=drivers)
         new.validate()
         return new
 

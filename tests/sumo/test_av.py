@@ -35,7 +35,7 @@ def test_commands_clamped_as_sumo_influencer_does(milan) -> None:
     speed = jnp.array([5.0, 5.0, 5.0, 5.0, 0.0, 5.0])
     accel = jnp.array([1e3, 1.0, -1e3, 1e3, 1.0, jnp.nan])
     command = traci.commanded_speed(speed, accel, pv, DT)
-    decel, av_accel = float(params.decel), float(params.av_accel)
+    decel, av_accel = float(params.vehicle.decel), float(params.av.accel)
     np.testing.assert_allclose(
         command[:5],
         [5.0 + av_accel * DT, 5.5, 5.0 - decel * DT, 5.0 + av_accel * DT, 0.5],
@@ -80,9 +80,11 @@ def test_for_vehicles_picks_each_class(milan) -> None:
 def test_reward_of_eq3_by_hand(milan) -> None:
     _, params = milan
     params = params.replace(
-        reward_speed_weight=jnp.float32(1.0),
-        reward_pollution_weight=jnp.float32(1.0),
-        reward_time_penalty=jnp.float32(0.0),
+        reward=params.reward.replace(
+            speed_weight=jnp.float32(1.0),
+            pollution_weight=jnp.float32(1.0),
+            time_penalty=jnp.float32(0.0),
+        )
     )
     v_des = jnp.full(4, 10.0)
     p_ref = float(reference_pollution(jnp.float32(10.0)))
@@ -91,9 +93,16 @@ def test_reward_of_eq3_by_hand(milan) -> None:
     co2 = jnp.array([p_ref, p_ref / 2, 0.0, 3 * p_ref])
     r = av_reward(speed, v_des, co2, params)
     np.testing.assert_allclose(r, [1.0, 0.5, 0.0, 0.0], atol=1e-5)
-    with_penalty = av_reward(speed, v_des, co2, params.replace(reward_time_penalty=1.0))
+    with_penalty = av_reward(
+        speed,
+        v_des,
+        co2,
+        params.replace(reward=params.reward.replace(time_penalty=1.0)),
+    )
     np.testing.assert_allclose(with_penalty, np.asarray(r) - 1.0, atol=1e-6)
-    speed_only = params.replace(reward_pollution_weight=jnp.float32(0.0))
+    speed_only = params.replace(
+        reward=params.reward.replace(pollution_weight=jnp.float32(0.0))
+    )
     np.testing.assert_allclose(
         av_reward(speed, v_des, co2, speed_only), [1.0, 0.5, 0.0, 0.0], atol=1e-6
     )
@@ -106,7 +115,7 @@ def test_reward_of_eq3_by_hand(milan) -> None:
 def busy_states(milan):
     """200 steps of the default scenario at 50% AVs, AVs uncontrolled."""
     env, params = milan
-    params = params.replace(penetration=jnp.float32(0.5))
+    params = params.with_penetration(0.5)
     sched = env.schedule_from_numpy(make_schedule(env.cfg, seed=0, penetration=0.5))
     obs, state = env.reset_to_schedule(sched, params)
     action = jnp.full((env.max_vehicles, 2), 1e3).at[:, 1].set(0.0)
@@ -178,7 +187,7 @@ def test_observer_by_name_and_bad_names() -> None:
 def test_braking_avs_cross_slower_and_never_collide() -> None:
     cfg = small_config("milan", n_vehicles=60, duration_s=150.0)
     env, params = make(cfg, max_vehicles=16, episode_s=300.0)
-    params = params.replace(penetration=jnp.float32(1.0))
+    params = params.with_penetration(1.0)
     sched = env.schedule_from_numpy(make_schedule(cfg, seed=0, penetration=1.0))
 
     def noisy(obs, state, key):  # random commands, braking hard at times
@@ -216,7 +225,9 @@ def test_uncontrolled_avs_match_sumo_in_mixed_traffic() -> None:
 def test_system_reward_by_hand(milan) -> None:
     _, params = milan
     params = params.replace(
-        reward_time_weight=jnp.float32(2.0), reward_co2_weight=jnp.float32(0.5)
+        reward=params.reward.replace(
+            time_weight=jnp.float32(2.0), co2_weight=jnp.float32(0.5)
+        )
     )
     active = jnp.array([True, True, True, False])
     agent = jnp.array([True, False, True, False])

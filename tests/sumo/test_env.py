@@ -20,8 +20,9 @@ import numpy as np
 import pytest
 
 from jaxround.core.network import CompiledNetwork
+from jaxround.core.params import EnvParams
 from jaxround.core.sampling import inverse_cdf, smallest_k, sorted_uniform
-from jaxround.core.state import EnvParams, EnvState, Schedule
+from jaxround.core.state import EnvState, Schedule
 from jaxround.envs.rollout import make_episode_runner, vehicle_records
 from jaxround.envs.roundabout import RoundaboutEnv, make
 from jaxround.scenario.config import ScenarioConfig, config_from_dict, load_config
@@ -125,7 +126,7 @@ def state_checks(
     route_len = jnp.asarray(net.route_length, jnp.float32)[s.route]
     lane, pos_on_lane = lane_of(net, s.route, s.pos)
     lane_speed = jnp.asarray(net.lane_speed, jnp.float32)[lane]
-    v_lane = jnp.minimum(lane_speed * s.speed_factor, params.max_speed)
+    v_lane = jnp.minimum(lane_speed * s.speed_factor, params.vehicle.max_speed)
     # no two vehicles whose fronts are on the same lane overlap (vehicles on
     # merging or diverging lanes may lie side by side, so only same lanes)
     both = act[:, None] & act[None, :] & ~jnp.eye(act.shape[0], dtype=bool)
@@ -150,10 +151,10 @@ def state_checks(
             act | ((s.vid == -1) & (s.pos == 0.0) & (s.speed == 0.0))
         ),
         "speed_in_bounds": jnp.all(
-            ~act | ((s.speed >= 0.0) & (s.speed <= params.max_speed))
+            ~act | ((s.speed >= 0.0) & (s.speed <= params.vehicle.max_speed))
         ),
         "speed_within_lane_limit": jnp.all(~act | (s.speed <= v_lane + 1e-3)),
-        "no_overlap_on_a_lane": jnp.all(~same_lane | (apart > params.length)),
+        "no_overlap_on_a_lane": jnp.all(~same_lane | (apart > params.vehicle.length)),
         "pos_in_route": jnp.all(~act | ((s.pos >= 0.0) & (s.pos <= route_len))),
         "insert_after_depart": jnp.all(
             ~s.inserted | (s.insert_s >= sch.depart_s - 1e-3)
@@ -266,9 +267,14 @@ def lone_schedule(env: RoundaboutEnv) -> NumpySchedule:
     )
 
 
-def params_axes(params: EnvParams, **batched: int) -> EnvParams:
-    """vmap in_axes for EnvParams: the named fields batched, the rest shared."""
-    return jax.tree.map(lambda _: None, params).replace(**batched)
+def params_axes(params: EnvParams, *batched: str) -> EnvParams:
+    """vmap in_axes for EnvParams: the fields named by path ("human.accel")
+    batched along axis 0, the rest shared."""
+
+    def axis(path: Any, _: Any) -> int | None:
+        return 0 if jax.tree_util.keystr(path).strip(".") in batched else None
+
+    return jax.tree_util.tree_map_with_path(axis, params)
 
 
 # --------------------------------------------------------------------- fixtures
@@ -291,27 +297,27 @@ class Small:
         self.step = jax.jit(env.step)
         self.vstep = jax.jit(jax.vmap(env.step, in_axes=(0, 0, 0, None)))
         self.vreset = jax.jit(
-            jax.vmap(env.reset, in_axes=(0, params_axes(params, accel=0)))
+            jax.vmap(env.reset, in_axes=(0, params_axes(params, "human.accel")))
         )
         self.action = jnp.zeros((env.max_vehicles, 2), jnp.float32)
         self.run = jax.jit(checked_runner(env, SMALL_RUN_STEPS))
 
     def batch(self, accels: Any) -> EnvParams:
         """The params with a batch of `accel` values (for `vreset`)."""
-        return self.params.replace(accel=jnp.asarray(accels, jnp.float32))
+        return self.params.with_human(accel=jnp.asarray(accels, jnp.float32))
 
     def reset(self, key: jax.Array, params: EnvParams) -> tuple[jax.Array, EnvState]:
         """`env.reset` through the jitted `vreset` (a batch of 3)."""
-        accels = jnp.full(3, params.accel, jnp.float32)
+        accels = jnp.full(3, params.human.accel, jnp.float32)
         keys = jnp.stack([key] * 3)
-        return tree_index(self.vreset(keys, params.replace(accel=accels)), 0)
+        return tree_index(self.vreset(keys, params.with_human(accel=accels)), 0)
 
     def run_all(self, schedule: NumpySchedule, accels: Any) -> Any:
         """The checked episode of `schedule` under each of `accels`, stacked
         along a first axis (host arrays)."""
         sched = self.env.schedule_from_numpy(schedule)
         runs = [
-            self.run(self.params.replace(accel=jnp.float32(a)), sched, RUN_KEY)
+            self.run(self.params.with_human(accel=jnp.float32(a)), sched, RUN_KEY)
             for a in accels
         ]
         return jax.device_get(tree_stack(*runs))
@@ -335,7 +341,7 @@ def small() -> Small:
 def normal_demand_run(small: Small) -> tuple[EnvState, dict[str, Any]]:
     """The small scenario at milan's rate through its 4 slots, at the default
     `accel` (first along the stacked axis) and at SECOND_ACCEL (second)."""
-    accels = (float(small.params.accel), SECOND_ACCEL)
+    accels = (float(small.params.human.accel), SECOND_ACCEL)
     return small.run_all(make_schedule(small.cfg, seed=1), accels)
 
 
@@ -369,8 +375,9 @@ def test_make_milan_defaults_and_shapes() -> None:
     assert env.n_legs == 4 and env.network.n_routes == 12
     assert env.episode_s == cfg.demand.duration_s + 300.0
     assert env.episode_steps == 7800
-    assert float(params.accel) == pytest.approx(cfg.drivers.hv.accel)
-    assert params.od.shape == (4, 4) and params.origin_share.shape == (4,)
+    assert float(params.human.accel) == pytest.approx(cfg.drivers.hv.accel)
+    assert params.demand.od.shape == (4, 4)
+    assert params.demand.origin_share.shape == (4,)
     key = jax.random.PRNGKey(0)
     # shapes without compiling: trace only
     obs, state = jax.eval_shape(env.reset, key, params)
@@ -399,7 +406,7 @@ def test_jitted_reset_and_step(small: Small) -> None:
     # it is traced under jit on its own (compiling it would cost seconds)
     jax.jit(env.reset).lower(jax.random.PRNGKey(0), small.params)
     assert env.max_vehicles == m and env.n_schedule == N_SMALL
-    assert float(small.params.duration_s) == DURATION_SMALL
+    assert float(small.params.demand.duration_s) == DURATION_SMALL
     steps = small.rollout(jax.random.PRNGKey(0), env.episode_steps)
     obs, state = steps[0][:2]
     assert obs.shape == (m, env.obs_size) and obs.dtype == jnp.float32
@@ -450,7 +457,7 @@ def test_vmap_step_over_states(small: Small) -> None:
 
 def test_vmap_reset_over_keys(small: Small) -> None:
     keys = jax.random.split(jax.random.PRNGKey(3), 3)
-    same = small.batch([small.params.accel] * 3)
+    same = small.batch([small.params.human.accel] * 3)
     obs, states = small.vreset(keys, same)
     assert obs.shape == (3, M_SMALL, small.env.obs_size)
     assert states.schedule.depart_s.shape == (3, N_SMALL)
@@ -472,14 +479,14 @@ def test_vmap_over_params_gives_different_trajectories(small: Small) -> None:
     (in_axes 0 on that field only, one shared key), then each member stepped
     with its own params; each member equals the unbatched reset."""
     env, params = small.env, small.params
-    accels = (0.8, float(params.accel), SECOND_ACCEL)
+    accels = (0.8, float(params.human.accel), SECOND_ACCEL)
     key = jax.random.PRNGKey(5)
     obs, states = small.vreset(jnp.stack([key] * 3), small.batch(accels))
     assert obs.shape == (3, M_SMALL, small.env.obs_size)
     last = small.rollout(jax.random.PRNGKey(4), env.episode_steps - 1)[-1][1]
     speeds = []
     for i, a in enumerate(accels):
-        p = params.replace(accel=jnp.float32(a))
+        p = params.with_human(accel=jnp.float32(a))
         o, s, _, done, _ = small.step(key, last, small.action, p)  # its reset
         assert bool(done) and tree_close(tree_index(states, i), s)
         state, trace = tree_index(states, i), []
@@ -568,7 +575,7 @@ def test_same_key_same_params_same_states(small: Small) -> None:
 def test_checked_run_is_deterministic(
     small: Small, normal_demand_run: tuple[EnvState, dict[str, Any]]
 ) -> None:
-    again = small.run_all(make_schedule(small.cfg, seed=1), [small.params.accel])
+    again = small.run_all(make_schedule(small.cfg, seed=1), [small.params.human.accel])
     assert tree_equal(tree_index(again, 0), tree_index(normal_demand_run, 0))
 
 
@@ -590,13 +597,12 @@ def milan_draws(small: Small) -> tuple[RoundaboutEnv, EnvParams, np.ndarray, Sch
     params = env.default_params
     pens = np.array(PENETRATIONS + HALF_PENETRATIONS)
     devs = np.where(pens < 0.5, 0.1, 0.6)
-    batch = params.replace(
-        penetration=jnp.asarray(pens, jnp.float32),
-        speed_dev=jnp.asarray(devs, jnp.float32),
+    batch = params.with_penetration(pens).with_human(
+        speed_dev=jnp.asarray(devs, jnp.float32)
     )
     draw = jax.vmap(
         jax.vmap(env.draw_schedule, in_axes=(0, None)),
-        in_axes=(None, params_axes(params, penetration=0, speed_dev=0)),
+        in_axes=(None, params_axes(params, "demand.penetration", "human.speed_dev")),
     )
     keys = jax.random.split(jax.random.PRNGKey(0), 32)
     return env, params, pens, jax.device_get(jax.jit(draw)(keys, batch))
@@ -627,7 +633,7 @@ def test_draw_schedule_av_count_at_exact_halves(milan_draws) -> None:
 
 def test_draw_schedule_is_well_formed(milan_draws) -> None:
     env, params, pens, s = milan_draws
-    n, dt, horizon = env.n_schedule, env.dt, float(params.duration_s)
+    n, dt, horizon = env.n_schedule, env.dt, float(params.demand.duration_s)
     dep = s.depart_s
     assert dep.shape == (len(pens), 32, n)
     assert np.all(np.diff(dep, axis=-1) >= 0)
@@ -686,8 +692,8 @@ def test_sort_free_draws() -> None:
 
 
 def test_draw_schedule_within_traced_horizon(small: Small) -> None:
-    params = small.batch([small.params.accel] * 3)
-    params = params.replace(duration_s=jnp.float32(7.0))
+    params = small.batch([small.params.human.accel] * 3)
+    params = params.replace(demand=params.demand.replace(duration_s=jnp.float32(7.0)))
     keys = jax.random.split(jax.random.PRNGKey(4), 3)
     _, states = small.vreset(keys, params)
     dep = np.asarray(states.schedule.depart_s)
@@ -793,7 +799,7 @@ def test_lone_vehicles_match_sumo(small: Small, tmp_path) -> None:
     run = run_schedule(small.cfg, sched, workdir=tmp_path)
     assert run.collisions == 0 and run.teleports == 0
     sumo = run.records
-    state, trace = tree_index(small.run_all(sched, [small.params.accel]), 0)
+    state, trace = tree_index(small.run_all(sched, [small.params.human.accel]), 0)
     assert np.asarray(trace["n_active"]).max() == 1  # lone indeed
     assert_invariants(trace)
     jx = vehicle_records(small.env, state)

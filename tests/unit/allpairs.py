@@ -13,7 +13,8 @@ import jax.numpy as jnp
 from jaxround.core import idm
 from jaxround.core.geometry import FAR, NetArrays, locate, project
 from jaxround.core.insertion import STOP_OFFSET
-from jaxround.core.state import EnvParams, EnvState
+from jaxround.core.params import EnvParams
+from jaxround.core.state import EnvState
 from jaxround.envs.observe import DISTANCE_SCALE, MISSING, RING_HORIZON_S, SPEED_SCALE
 
 
@@ -210,12 +211,12 @@ def paper_observation(
         and float (M,) bumper-to-bumper gap to it, for the rich observer.
     """
     x_max = jnp.max(net.route_length)
-    a_max = params.av_accel
+    a_max = params.av.accel
     _, lane, pos_on_lane = locate(net, state.route, state.pos)
     front = project(net, state.route, lane, pos_on_lane)  # (M, M)
-    leader, gap = leaders(front, state.pos, state.active, params.length)
+    leader, gap = leaders(front, state.pos, state.active, params.vehicle.length)
     # the follower: the nearest front behind this vehicle's back on its route
-    behind = state.pos[:, None] - params.length - front  # (M, M)
+    behind = state.pos[:, None] - params.vehicle.length - front  # (M, M)
     m = state.pos.shape[0]
     ok = (
         state.active[None, :]
@@ -230,9 +231,9 @@ def paper_observation(
     has_leader = leader >= 0
     lead = jnp.maximum(leader, 0)
     a = state.accel
-    x_front = jnp.where(has_leader, state.pos + gap + params.length, 0.0)
+    x_front = jnp.where(has_leader, state.pos + gap + params.vehicle.length, 0.0)
     x_back = jnp.where(
-        has_follower, state.pos - params.length - jnp.min(dist, axis=1), 0.0
+        has_follower, state.pos - params.vehicle.length - jnp.min(dist, axis=1), 0.0
     )
     none = jnp.zeros(m)
     obs = jnp.stack(
@@ -295,7 +296,7 @@ def rich_observation(
             jnp.clip(to_line / DISTANCE_SCALE, -1.0, 1.0),
             jnp.clip(soonest / RING_HORIZON_S, 0.0, 1.0),
             legs_to_exit / g,
-            jnp.minimum(state.waiting_s / params.time_to_impatience, 1.0),
+            jnp.minimum(state.waiting_s / params.vehicle.time_to_impatience, 1.0),
         ],
         axis=-1,
     )

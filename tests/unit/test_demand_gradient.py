@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from jaxround.analysis import demand_gradient as dg
-from jaxround.core.state import EnvParams
+from jaxround.core.params import EnvParams
 from jaxround.envs.roundabout import RoundaboutEnv, make
 from tests.conftest import small_config
 
@@ -34,13 +34,15 @@ def test_score_gradient_matches_an_analytic_expectation(small) -> None:
         return dg.surrogate(values, log_probs)
 
     value, grad = jax.jit(jax.value_and_grad(estimate))(params)
-    s = np.asarray(params.origin_share, np.float64)
+    s = np.asarray(params.demand.origin_share, np.float64)
     total = s.sum()
     assert float(value) == pytest.approx(s[0] / total, abs=0.005)
     analytic = (np.eye(len(s))[0] * total - s[0]) / total**2
-    np.testing.assert_allclose(np.asarray(grad.origin_share), analytic, atol=0.03)
-    od = np.asarray(params.od)
-    g_od = np.asarray(grad.od)
+    np.testing.assert_allclose(
+        np.asarray(grad.demand.origin_share), analytic, atol=0.03
+    )
+    od = np.asarray(params.demand.od)
+    g_od = np.asarray(grad.demand.od)
     assert np.all(g_od[od == 0] == 0)  # never drawn: no gradient, not a biased one
     np.testing.assert_allclose(g_od, 0.0, atol=0.03)
 
@@ -54,16 +56,20 @@ def test_score_gradient_agrees_with_finite_differences_of_rollouts(small) -> Non
     value_and_grad = jax.jit(jax.value_and_grad(f))
     value, grad = value_and_grad(params)
     assert float(value) > 0
-    od = np.asarray(params.od)
-    assert np.all(np.asarray(grad.od)[od == 0] == 0)
+    od = np.asarray(params.demand.od)
+    assert np.all(np.asarray(grad.demand.od)[od == 0] == 0)
     # from leg 0, the next exit and the farthest: more of one shortens the
     # mean crossing, more of the other lengthens it
     h = 0.05
     for j in (1, 3):
-        up = params.replace(od=params.od.at[0, j].add(h))
-        down = params.replace(od=params.od.at[0, j].add(-h))
+
+        def od_at(step: float, j: int = j) -> EnvParams:
+            od = params.demand.od.at[0, j].add(step)
+            return params.replace(demand=params.demand.replace(od=od))
+
+        up, down = od_at(h), od_at(-h)
         fd = float(value_and_grad(up)[0] - value_and_grad(down)[0]) / (2 * h)
-        g = float(grad.od[0, j])
+        g = float(grad.demand.od[0, j])
         assert abs(fd) > 0.5, fd
         assert 0.5 < g / fd < 2.0, (j, g, fd)
 

@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from jaxround.analysis.survey import CALIBRATABLE, measured_rollout
-from jaxround.core.state import EnvParams, EnvState
+from jaxround.core.params import EnvParams
+from jaxround.core.state import EnvState
 from jaxround.envs.rollout import make_episode_runner, uncontrolled_policy
 from jaxround.envs.roundabout import RoundaboutEnv, make
 from jaxround.scenario.schedule import make_schedule
@@ -42,14 +43,14 @@ def busy() -> tuple[RoundaboutEnv, EnvParams, EnvState, jax.Array]:
     env, params = make("milan", max_vehicles=32)
     sched = env.schedule_from_numpy(make_schedule(env.cfg, seed=0))
     state = make_episode_runner(env, n_steps=600)(params, sched, jax.random.PRNGKey(0))
-    x0 = jnp.array([float(getattr(params, k)) for k in CALIBRATABLE], jnp.float32)
+    x0 = jnp.array([float(params.human_number(k)) for k in CALIBRATABLE], jnp.float32)
     return env, params, state, x0
 
 
 def with_drivers(params: EnvParams, x: jax.Array, temperature: jax.Array) -> EnvParams:
     """`params` with the CALIBRATABLE numbers `x` (7,) and a temperature."""
     fields = {k: x[i] for i, k in enumerate(CALIBRATABLE)}
-    return params.replace(relax_temperature=temperature, **fields)
+    return params.with_human(**fields).replace(relax_temperature=temperature)
 
 
 @pytest.fixture(scope="module")

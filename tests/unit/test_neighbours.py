@@ -50,7 +50,7 @@ def random_states(env: Any, seed: int, n: int = STATES) -> dict[str, jax.Array]:
     diverge = np.asarray(net.lane_diverge)
     internal = np.asarray(net.lane_internal)
     route_len = np.asarray(net.route_length)
-    length = np.float32(env.default_params.length)
+    length = np.float32(env.default_params.vehicle.length)
     r_n = route_len.shape[0]
     route = rng.integers(0, r_n, (n, M))
     pos = (rng.random((n, M)) * route_len[route]).astype(np.float32)
@@ -105,7 +105,7 @@ def _old_front_back(net, route, pos, length):
 
 def test_route_projections_are_the_pairwise_projections(case) -> None:
     env, params, states = case
-    net, length = env.net, params.length
+    net, length = env.net, params.vehicle.length
 
     @jax.vmap
     def both(s):
@@ -141,7 +141,7 @@ def _segments(net, seed: int) -> dict[str, tuple[jax.Array, jax.Array]]:
 
 def test_rearmost_on_matches_all_pairs(case) -> None:
     env, params, states = case
-    net, length = env.net, params.length
+    net, length = env.net, params.vehicle.length
     segments = _segments(net, seed=3)
 
     @jax.vmap
@@ -169,7 +169,7 @@ def test_rearmost_on_matches_all_pairs(case) -> None:
 
 def test_leaders_match_all_pairs(case) -> None:
     env, params, states = case
-    net, length = env.net, params.length
+    net, length = env.net, params.vehicle.length
 
     @jax.vmap
     def both(s):

@@ -19,7 +19,8 @@ import pytest
 
 from jaxround.analysis import episode_movie, render
 from jaxround.core import geometry
-from jaxround.core.state import EnvParams, EnvState, Registrations, Schedule
+from jaxround.core.params import EnvParams
+from jaxround.core.state import EnvState, Registrations, Schedule
 from jaxround.envs.roundabout import RoundaboutEnv, make
 
 matplotlib.use("Agg")

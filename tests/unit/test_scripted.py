@@ -148,7 +148,7 @@ def test_columns_read_what_the_environment_holds() -> None:
     np.testing.assert_allclose(
         obs[:, TO_YIELD_LINE] * DISTANCE_SCALE, line - pos, atol=1e-4
     )
-    length = float(params.length)
+    length = float(params.vehicle.length)
     np.testing.assert_allclose(
         obs[:2, LEADER_GAP] * DISTANCE_SCALE, np.diff(pos) - length, atol=1e-4
     )
