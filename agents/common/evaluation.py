@@ -93,8 +93,7 @@ def evaluate_policy(
         still in or waiting at the cap, over all runs,
         "results": {driver: {penetration: metrics}}}`` where metrics are
         `jaxround.analysis.metrics.class_metrics` averaged over seeds, plus
-        ``collisions`` and ``slot_overflow`` (means over seeds; collisions
-        None when the environment does not count them).
+        ``collisions`` and ``slot_overflow`` (means over seeds).
 
     Raises:
         ValueError: the policy reads other observations than the environment
@@ -140,9 +139,8 @@ def evaluate_policy(
         rec = vehicle_records(env, state)
         records[driver].setdefault(p, []).append(rec)
         m = class_metrics(rec, horizon)
-        collisions = getattr(state, "collisions", None)
-        m["collisions"] = None if collisions is None else int(collisions)
-        m["slot_overflow"] = int(state.overflow)
+        m["collisions"] = int(state.stats.collisions)
+        m["slot_overflow"] = int(state.stats.overflow)
         overflow += m["slot_overflow"]
         not_arrived += int(np.sum(~rec.arrived))
         per_run.setdefault((driver, p), []).append(m)

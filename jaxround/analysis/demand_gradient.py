@@ -152,5 +152,5 @@ def mean_crossing_time(state: EnvState) -> jax.Array:
 
 def mean_queue(state: EnvState) -> jax.Array:
     """float (): the mean queue per leg over the episode's samples (vehicles)."""
-    samples = jnp.maximum(state.queue_samples, 1).astype(jnp.float32)
-    return jnp.mean(state.queue_sum) / samples
+    samples = jnp.maximum(state.stats.queue_samples, 1).astype(jnp.float32)
+    return jnp.mean(state.stats.queue_sum) / samples

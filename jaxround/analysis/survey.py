@@ -292,7 +292,7 @@ def jax_survey(
         seeds=tuple(int(s) for s in seeds),
         drivers=driver_numbers(params),
         source="jax",
-        slot_overflow=int(np.sum(state.overflow)),
+        slot_overflow=int(np.sum(state.stats.overflow)),
     )
 
 

@@ -99,7 +99,7 @@ def window_runner(
 
         init = (obs, state, jnp.int32(0))
         (_, state, occupied), _ = jax.lax.scan(body, init, None, length=steps)
-        return state, occupied, state.overflow
+        return state, occupied, state.stats.overflow
 
     return jax.jit(one)
 

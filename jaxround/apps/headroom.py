@@ -232,7 +232,7 @@ def run_jax(
             out.setdefault(job[0], []).append(
                 {
                     "records": vehicle_records(env, state),
-                    "overflow": int(state.overflow),
+                    "overflow": int(state.stats.overflow),
                     "max_vehicles": env.max_vehicles,
                 }
             )

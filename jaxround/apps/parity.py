@@ -71,7 +71,7 @@ def run_jax(
         out.append(
             {
                 "records": vehicle_records(env, state),
-                "overflow": int(state.overflow),
+                "overflow": int(state.stats.overflow),
                 "end_s": float(state.step) * env.dt,
                 "max_vehicles": env.max_vehicles,
             }

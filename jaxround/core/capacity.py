@@ -12,7 +12,7 @@ insertion can overflow.
 
 A config may set fewer slots for speed (``simulation.max_vehicles``, a
 trainer's ``max_vehicles``, ``--max-vehicles``); then an insertion that finds
-every slot taken waits, counted in ``EnvState.overflow`` (vehicle-steps), and
+every slot taken waits, counted in ``EnvState.stats.overflow`` (vehicle-steps), and
 the run departs from SUMO's. `overflow_warning` says so.
 """
 
@@ -86,7 +86,7 @@ def overflow_warning(
 
     Args:
         overflow: vehicle-steps an insertion waited because all M slots
-            were taken (``EnvState.overflow``, summed over runs).
+            were taken (``EnvState.stats.overflow``, summed over runs).
         max_vehicles: the slots M of the runs.
         what: the runs, for the message.
     """

@@ -101,6 +101,50 @@ class Registrations(NamedTuple):
 
 
 @struct.dataclass
+class EpisodeStats:
+    """What an episode has measured so far, kept apart from the physical state:
+    the environment adds to it every step, and nothing in the step reads it.
+
+    Attributes:
+        trip_co2_mg: float (N,) CO2 of finished trips.
+        trip_fuel_mg: float (N,) fuel of finished trips.
+        queue_sum: float (G,) sum over steps of queued vehicles per leg.
+        queue_max: float (G,) largest queue per leg.
+        queue_samples: int, steps summed into `queue_sum` (within the horizon).
+        overflow: int, insertions postponed because every slot was full
+            (vehicle-steps).
+        collisions: int, vehicles that ran into the one ahead (0 by design;
+            counted so evaluations can show it).
+    """
+
+    trip_co2_mg: jax.Array
+    trip_fuel_mg: jax.Array
+    queue_sum: jax.Array
+    queue_max: jax.Array
+    queue_samples: jax.Array
+    overflow: jax.Array
+    collisions: jax.Array
+
+    @classmethod
+    def zeros(cls, n: int, g: int) -> EpisodeStats:
+        """Nothing measured yet: N scheduled vehicles, G legs."""
+        zero = jnp.int32(0)
+        trips, legs = jnp.zeros(n, jnp.float32), jnp.zeros(g, jnp.float32)
+        return cls(trips, trips, legs, legs, zero, zero, zero)
+
+    def fields(self, n: int, g: int) -> dict[str, tuple[Any, tuple[int, ...], str]]:
+        """`_check`'s table of these fields, named ``stats.<field>``."""
+        table: dict[str, tuple[Any, tuple[int, ...], str]] = {}
+        for name in ("trip_co2_mg", "trip_fuel_mg"):
+            table[name] = (getattr(self, name), (n,), "f")
+        for name in ("queue_sum", "queue_max"):
+            table[name] = (getattr(self, name), (g,), "f")
+        for name in ("queue_samples", "overflow", "collisions"):
+            table[name] = (getattr(self, name), (), "i")
+        return {f"stats.{name}": entry for name, entry in table.items()}
+
+
+@struct.dataclass
 class EnvState:
     """State of one roundabout. M = max_vehicles slots, N scheduled vehicles.
 
@@ -121,17 +165,11 @@ class EnvState:
         inserted: bool (N,) the vehicle has entered the network.
         insert_s: float (N,) insertion time (nan before).
         arrival_s: float (N,) arrival time (nan before).
-        trip_co2_mg: float (N,) CO2 of finished trips.
-        trip_fuel_mg: float (N,) fuel of finished trips.
-        queue_sum: float (n_legs,) sum over steps of queued vehicles per leg.
-        queue_max: float (n_legs,) largest queue per leg.
-        queue_samples: int, steps summed into `queue_sum` (within the horizon).
-        overflow: int, insertions postponed because every slot was full.
-        collisions: int, vehicles that ran into the one ahead (0 by design;
-            counted so evaluations can show it).
         registrations: the approaches each slot registered on the ring's
             through links in the last step, (M, G) arrays (SUMO plans with
             the previous step's registrations).
+        stats: the episode's `EpisodeStats` (trip emissions, queues, slot
+            overflow, collisions).
     """
 
     step: jax.Array
@@ -150,25 +188,19 @@ class EnvState:
     inserted: jax.Array
     insert_s: jax.Array
     arrival_s: jax.Array
-    trip_co2_mg: jax.Array
-    trip_fuel_mg: jax.Array
-    queue_sum: jax.Array
-    queue_max: jax.Array
-    queue_samples: jax.Array
-    overflow: jax.Array
-    collisions: jax.Array
     registrations: Registrations
+    stats: EpisodeStats
 
     def validate(self) -> None:
         """Check shapes and dtypes: per-slot fields (..., M), per-vehicle fields
-        (..., N), queue fields (..., G), registrations (..., M, G), counters
+        (..., N), per-leg fields (..., G), registrations (..., M, G), counters
         (...,), the same leading axes everywhere; ValueError naming the field.
 
         Call it outside `jit` (it reads shapes only, so it works on traced
         values too, but raises at trace time)."""
         m = jnp.shape(self.active)[-1]
         n = jnp.shape(self.inserted)[-1]
-        g = jnp.shape(self.queue_sum)[-1]
+        g = jnp.shape(self.registrations.ok)[-1]
         self.schedule.validate()
         fields: dict[str, tuple[Any, tuple[int, ...], str]] = {
             "step": (self.step, (), "i"),
@@ -177,19 +209,15 @@ class EnvState:
             "route": (self.route, (m,), "i"),
             "is_av": (self.is_av, (m,), "b"),
             "inserted": (self.inserted, (n,), "b"),
-            "queue_samples": (self.queue_samples, (), "i"),
-            "overflow": (self.overflow, (), "i"),
-            "collisions": (self.collisions, (), "i"),
             "schedule.depart_s": (self.schedule.depart_s, (n,), "f"),
             "registrations.ok": (self.registrations.ok, (m, g), "b"),
         }
         for name in ("pos", "speed", "accel", "speed_factor", "waiting_s", "co2_mg",
                      "fuel_mg"):  # fmt: skip
             fields[name] = (getattr(self, name), (m,), "f")
-        for name in ("insert_s", "arrival_s", "trip_co2_mg", "trip_fuel_mg"):
+        for name in ("insert_s", "arrival_s"):
             fields[name] = (getattr(self, name), (n,), "f")
-        for name in ("queue_sum", "queue_max"):
-            fields[name] = (getattr(self, name), (g,), "f")
+        fields.update(self.stats.fields(n, g))
         for name in Registrations._fields[1:]:
             fields[f"registrations.{name}"] = (
                 getattr(self.registrations, name), (m, g), "f",

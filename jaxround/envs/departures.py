@@ -38,7 +38,7 @@ def insert_departures(
     out, which also keeps the backward pass small to compile).
 
     Shapes: G legs, N scheduled vehicles, M slots. The k-th inserting leg takes
-    the k-th free slot; one with no free slot is counted in `state.overflow`.
+    the k-th free slot; one with no free slot is counted in `state.stats.overflow`.
     """
     s = state.schedule
     p = jax.lax.stop_gradient(params)
@@ -106,5 +106,5 @@ def insert_departures(
         fuel_mg=put(state.fuel_mg, jnp.zeros(g)),
         inserted=state.inserted.at[vids].set(True, mode="drop"),
         insert_s=state.insert_s.at[vids].set(t, mode="drop"),
-        overflow=state.overflow + jnp.sum(overflow),
+        stats=state.stats.replace(overflow=state.stats.overflow + jnp.sum(overflow)),
     )

@@ -37,8 +37,13 @@ def count_queues(
     """Queued vehicles per leg: halting on the approach plus waiting to enter."""
     q = queued_per_leg(net, state, t, jnp.float32(0.0))
     within = t <= params.demand.duration_s + 1e-4
+    stats = state.stats
     return state.replace(
-        queue_sum=state.queue_sum + jnp.where(within, q, 0.0),
-        queue_max=jnp.where(within, jnp.maximum(state.queue_max, q), state.queue_max),
-        queue_samples=state.queue_samples + within.astype(jnp.int32),
+        stats=stats.replace(
+            queue_sum=stats.queue_sum + jnp.where(within, q, 0.0),
+            queue_max=jnp.where(
+                within, jnp.maximum(stats.queue_max, q), stats.queue_max
+            ),
+            queue_samples=stats.queue_samples + within.astype(jnp.int32),
+        )
     )

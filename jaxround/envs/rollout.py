@@ -114,10 +114,10 @@ def make_episode_runner(
 def vehicle_records(env: RoundaboutEnv, state: EnvState) -> VehicleRecords:
     """The metrics' `VehicleRecords` of a finished (unbatched) episode."""
     s = jax.device_get(state)
-    samples = max(int(s.queue_samples), 1)
+    samples = max(int(s.stats.queue_samples), 1)
     nan = np.isnan
-    co2 = np.asarray(s.trip_co2_mg, np.float64) / 1000.0
-    fuel = np.asarray(s.trip_fuel_mg, np.float64) / 1000.0
+    co2 = np.asarray(s.stats.trip_co2_mg, np.float64) / 1000.0
+    fuel = np.asarray(s.stats.trip_fuel_mg, np.float64) / 1000.0
     arrival = np.asarray(s.arrival_s, np.float64)
     return VehicleRecords(
         is_av=np.asarray(s.schedule.is_av, bool),
@@ -127,6 +127,6 @@ def vehicle_records(env: RoundaboutEnv, state: EnvState) -> VehicleRecords:
         arrival_s=arrival,
         co2_g=np.where(nan(arrival), np.nan, co2),
         fuel_g=np.where(nan(arrival), np.nan, fuel),
-        queue_mean_veh=np.asarray(s.queue_sum, np.float64) / samples,
-        queue_max_veh=np.asarray(s.queue_max, np.float64),
+        queue_mean_veh=np.asarray(s.stats.queue_sum, np.float64) / samples,
+        queue_max_veh=np.asarray(s.stats.queue_max, np.float64),
     )

@@ -24,7 +24,7 @@ from jaxround.core import dynamics, emissions, geometry, idm
 from jaxround.core.capacity import resolve_max_vehicles
 from jaxround.core.network import CompiledNetwork
 from jaxround.core.params import EnvParams
-from jaxround.core.state import EnvState, Registrations, Schedule
+from jaxround.core.state import EnvState, EpisodeStats, Registrations, Schedule
 from jaxround.envs import departures, observe, queues, schedules
 from jaxround.envs.actions import command_from_action
 from jaxround.envs.assertiveness import retuned_params
@@ -148,14 +148,8 @@ class RoundaboutEnv:
             inserted=jnp.zeros(n, bool),
             insert_s=jnp.full(n, jnp.nan, jnp.float32),
             arrival_s=jnp.full(n, jnp.nan, jnp.float32),
-            trip_co2_mg=jnp.zeros(n, jnp.float32),
-            trip_fuel_mg=jnp.zeros(n, jnp.float32),
-            queue_sum=jnp.zeros(g, jnp.float32),
-            queue_max=jnp.zeros(g, jnp.float32),
-            queue_samples=jnp.int32(0),
-            overflow=jnp.int32(0),
-            collisions=jnp.int32(0),
             registrations=Registrations.empty(m, g),
+            stats=EpisodeStats.zeros(n, g),
         )
         state = self._insert(state, params, jnp.float32(0.0))
         return self.observation(state, params), state
@@ -255,8 +249,11 @@ class RoundaboutEnv:
         # 2. arrivals leave their slots
         vid = jnp.where(arrived, state.vid, self.n_schedule)  # out of range: dropped
         arrival_s = state.arrival_s.at[vid].set(t + self.dt, mode="drop")
-        trip_co2 = state.trip_co2_mg.at[vid].set(co2, mode="drop")
-        trip_fuel = state.trip_fuel_mg.at[vid].set(fuel, mode="drop")
+        stats = state.stats.replace(
+            trip_co2_mg=state.stats.trip_co2_mg.at[vid].set(co2, mode="drop"),
+            trip_fuel_mg=state.stats.trip_fuel_mg.at[vid].set(fuel, mode="drop"),
+            collisions=state.stats.collisions + jnp.sum(crashed),
+        )
         active = state.active & ~arrived
         state = state.replace(
             step=state.step + 1,
@@ -270,10 +267,8 @@ class RoundaboutEnv:
             co2_mg=jnp.where(active, co2, 0.0),
             fuel_mg=jnp.where(active, fuel, 0.0),
             arrival_s=arrival_s,
-            trip_co2_mg=trip_co2,
-            trip_fuel_mg=trip_fuel,
-            collisions=state.collisions + jnp.sum(crashed),
             registrations=regs._replace(ok=regs.ok & active[:, None]),
+            stats=stats,
         )
 
         # 3. insertions, then the queue statistics of the new time
@@ -286,7 +281,7 @@ class RoundaboutEnv:
             "truncated": agent & ~arrived & done,
             "arrived": jnp.sum(arrived),
             "collisions": jnp.sum(crashed),
-            "overflow": state.overflow,
+            "overflow": state.stats.overflow,
             "n_active": jnp.sum(state.active),
         }
         return self.observation(state, p), state, reward, done, info

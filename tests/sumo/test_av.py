@@ -198,7 +198,7 @@ def test_braking_avs_cross_slower_and_never_collide() -> None:
     rand = make_episode_runner(env, noisy)(params, sched, jax.random.PRNGKey(1))
     ct_free = vehicle_records(env, free).crossing_time_s
     ct_rand = vehicle_records(env, rand).crossing_time_s
-    assert int(free.collisions) == int(rand.collisions) == 0
+    assert int(free.stats.collisions) == int(rand.stats.collisions) == 0
     assert np.all(np.isfinite(ct_free))
     arrived = np.isfinite(ct_rand)
     assert arrived.sum() > 10  # slow, but moving

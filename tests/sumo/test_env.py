@@ -165,8 +165,8 @@ def state_checks(
         ),
         "emissions_non_negative": jnp.all(s.co2_mg >= 0.0)
         & jnp.all(s.fuel_mg >= 0.0)
-        & jnp.all(s.trip_co2_mg >= 0.0)
-        & jnp.all(s.trip_fuel_mg >= 0.0),
+        & jnp.all(s.stats.trip_co2_mg >= 0.0)
+        & jnp.all(s.stats.trip_fuel_mg >= 0.0),
     }
 
 
@@ -188,7 +188,7 @@ class CheckedEnv:
     def _checks(self, state, params, reward, done, info, n_arrived):
         t = state.step.astype(jnp.float32) * self.env.dt
         out = state_checks(self.env, params, state, t)
-        out["info_overflow_is_state"] = info["overflow"] == state.overflow
+        out["info_overflow_is_state"] = info["overflow"] == state.stats.overflow
         out["info_n_active"] = info["n_active"] == jnp.sum(state.active)
         out["info_arrived_sums"] = n_arrived == jnp.sum(~jnp.isnan(state.arrival_s))
         out["info_truncated_only_at_done"] = ~jnp.any(info["truncated"]) | done
@@ -201,7 +201,7 @@ class CheckedEnv:
     def reset_to_schedule(self, schedule: Schedule, params: EnvParams):
         obs, state = self.env.reset_to_schedule(schedule, params)
         info = {
-            "overflow": state.overflow,
+            "overflow": state.stats.overflow,
             "n_active": jnp.sum(state.active),
             "truncated": jnp.zeros(self.max_vehicles, bool),
             "collisions": jnp.int32(0),
@@ -410,7 +410,7 @@ def test_jitted_reset_and_step(small: Small) -> None:
     steps = small.rollout(jax.random.PRNGKey(0), env.episode_steps)
     obs, state = steps[0][:2]
     assert obs.shape == (m, env.obs_size) and obs.dtype == jnp.float32
-    assert int(state.step) == 0 and int(state.overflow) == 0
+    assert int(state.step) == 0 and int(state.stats.overflow) == 0
     assert np.all(np.isnan(state.arrival_s))
     for i, (obs, state, reward, done, info) in enumerate(steps[1:], 1):
         assert obs.shape == (m, env.obs_size) and reward.shape == (m,)
@@ -419,7 +419,7 @@ def test_jitted_reset_and_step(small: Small) -> None:
         assert not np.any(info["terminated"])
         assert bool(done) == (i == env.episode_steps)
         if not done:  # after a reset, info still tells of the finished step
-            assert int(info["overflow"]) == int(state.overflow)
+            assert int(info["overflow"]) == int(state.stats.overflow)
             assert int(info["n_active"]) == int(np.sum(state.active))
         # observation: zero rows for empty slots, the documented features else
         o, act = np.asarray(obs), np.asarray(state.active)
@@ -548,14 +548,14 @@ def test_auto_reset_after_episode_end(small: Small) -> None:
             fresh_obs, fresh = small.reset(k, small.params)
             assert tree_close(state, fresh)
             assert tree_close(obs, fresh_obs)
-            assert int(state.step) == 0 and int(state.overflow) == 0
-            assert int(state.queue_samples) == 0
+            assert int(state.step) == 0 and int(state.stats.overflow) == 0
+            assert int(state.stats.queue_samples) == 0
             assert np.all(np.isnan(state.arrival_s))
-            assert np.all(np.asarray(state.trip_co2_mg) == 0.0)
+            assert np.all(np.asarray(state.stats.trip_co2_mg) == 0.0)
             assert not tree_equal(state.schedule, before.schedule)
     assert dones == [i == env.episode_steps for i in range(1, len(keys) + 1)]
     assert int(before.step) == env.episode_steps - 1
-    assert int(before.queue_samples) == env.episode_steps - 1
+    assert int(before.stats.queue_samples) == env.episode_steps - 1
     assert int(state.step) == 3  # the new episode goes on
 
 
@@ -710,7 +710,7 @@ def test_full_slots_postpone_but_never_lose_vehicles(
     state, trace = tree_index(normal_demand_run, 0)  # the default params
     assert_invariants(trace)
     overflow = np.asarray(trace["overflow"])
-    assert overflow[-1] > 0 and overflow[-1] == int(state.overflow)
+    assert overflow[-1] > 0 and overflow[-1] == int(state.stats.overflow)
     assert np.all(np.diff(overflow) >= 0)
     assert np.asarray(trace["n_active"]).max() == M_SMALL
     # vehicles waited for a slot instead of vanishing: all 36 came and left
@@ -731,8 +731,10 @@ def test_twice_the_demand_for_an_hour(double_demand) -> None:
     assert arrived.any()
     assert state.inserted.sum() == arrived.sum() + state.active.sum()
     # the queue statistics cover exactly the demand horizon
-    assert int(state.queue_samples) == round(3600.0 / env.dt)
-    assert np.all(state.queue_max >= state.queue_sum / state.queue_samples)
+    assert int(state.stats.queue_samples) == round(3600.0 / env.dt)
+    assert np.all(
+        state.stats.queue_max >= state.stats.queue_sum / state.stats.queue_samples
+    )
 
 
 @pytest.mark.parametrize("run", ["normal_demand_run", "double_demand"])

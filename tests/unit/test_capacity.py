@@ -131,7 +131,7 @@ def peak_and_overflow(cfg: Any, max_vehicles: int | None, steps: int) -> tuple:
             return (obs, state), jnp.sum(state.active)
 
         (_, state), n_active = jax.lax.scan(body, (obs, state), None, length=steps)
-        return jnp.max(n_active), state.overflow
+        return jnp.max(n_active), state.stats.overflow
 
     peak, overflow = run(schedule)
     return env.max_vehicles, int(peak), int(overflow)

@@ -67,7 +67,7 @@ def window(busy):
         end, queues, in_network = measured_rollout(
             env, p, obs, state, WINDOW, remat=False
         )
-        co2_g = (jnp.sum(end.trip_co2_mg) + jnp.sum(end.co2_mg)) / 1000.0
+        co2_g = (jnp.sum(end.stats.trip_co2_mg) + jnp.sum(end.co2_mg)) / 1000.0
         return jnp.sum(in_network) * env.dt + 10 * jnp.sum(queues) * env.dt + co2_g
 
     # one compiled program gives both (compiling takes longer than running)

@@ -20,7 +20,7 @@ import pytest
 from jaxround.analysis import episode_movie, render
 from jaxround.core import geometry
 from jaxround.core.params import EnvParams
-from jaxround.core.state import EnvState, Registrations, Schedule
+from jaxround.core.state import EnvState, EpisodeStats, Registrations, Schedule
 from jaxround.envs.roundabout import RoundaboutEnv, make
 
 matplotlib.use("Agg")
@@ -90,14 +90,8 @@ def hand_state(env: RoundaboutEnv, shift: float = 0.0, step: int = STEP) -> EnvS
         inserted=jnp.asarray(INSERTED),
         insert_s=zeros_n,
         arrival_s=jnp.full(n, jnp.nan, f32),
-        trip_co2_mg=zeros_n,
-        trip_fuel_mg=zeros_n,
-        queue_sum=jnp.zeros(net.n_legs, f32),
-        queue_max=jnp.zeros(net.n_legs, f32),
-        queue_samples=jnp.int32(0),
-        overflow=jnp.int32(0),
-        collisions=jnp.int32(0),
         registrations=Registrations.empty(m, net.n_legs),
+        stats=EpisodeStats.zeros(n, net.n_legs),
     )
 
 

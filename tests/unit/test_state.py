@@ -1,4 +1,5 @@
-"""`EnvState.validate` and `Schedule.validate`: shapes and dtypes, named."""
+"""`EnvState.validate` and `Schedule.validate`: shapes and dtypes, named (the
+episode statistics too)."""
 
 from __future__ import annotations
 
@@ -35,6 +36,10 @@ def test_states_from_reset_are_valid_alone_and_batched(states) -> None:
         (lambda s: s.replace(schedule=s.schedule.replace(route=s.schedule.route[1:])),
          "Schedule.route"),
         (lambda s: s.replace(step=jnp.zeros(2, jnp.int32)), "leading axes"),
+        (lambda s: s.replace(stats=s.stats.replace(queue_sum=s.stats.queue_sum[1:])),
+         r"EnvState.stats.queue_sum: shape \(3,\), expected \(..., 4\)"),
+        (lambda s: s.replace(stats=s.stats.replace(overflow=jnp.float32(0))),
+         "EnvState.stats.overflow: dtype float32, expected int"),
     ],
 )  # fmt: skip
 def test_a_wrong_field_is_named(states, change, message) -> None:
