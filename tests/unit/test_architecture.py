@@ -92,7 +92,7 @@ def closure(start: set[str]) -> set[str]:
 
 def test_the_import_graph_is_read() -> None:
     assert "jaxround.core.dynamics" in MODULES
-    assert "jaxround.core.idm" in imported("jaxround.core.dynamics")
+    assert "jaxround.core.idm" in imported("jaxround.core.planning")
     assert "jaxround.scenario.config" in imported("sumo_export.scenario")
 
 

@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxround.core import dynamics, neighbours
+from jaxround.core import neighbours, planning
 from jaxround.core.geometry import back_projection, leaders, locate, project
 from jaxround.core.link_leaders import link_leader
 from jaxround.envs import observe
@@ -185,6 +185,20 @@ def test_leaders_match_all_pairs(case) -> None:
         assert bool(jnp.any(new[0] >= 0))
 
 
+def phased_link_leader_speed(
+    net, car, route, pos, speed, v_lane, active, may_drive_to_line, v_wait, dt,
+    n_substeps, action_step, km_fixed, *, tables,
+) -> tuple[jax.Array, jax.Array]:  # fmt: skip
+    """`planning.link_leader_speed` with the all-pairs version's arguments."""
+    ones = jnp.ones_like(pos)
+    veh = planning.Vehicles(route, pos, speed, ones, active, 0.0 * ones)
+    return planning.link_leader_speed(
+        net, car, veh, v_lane, may_drive_to_line, v_wait,
+        step=planning.Stepping(dt, n_substeps, action_step), tables=tables,
+        km_fixed=km_fixed,
+    )  # fmt: skip
+
+
 def test_link_leaders_match_all_pairs(case) -> None:
     env, params, states = case
     net = env.net
@@ -226,7 +240,7 @@ def test_link_leaders_match_all_pairs(case) -> None:
                     **kw,
                 )
                 for f, kw in (
-                    (dynamics.link_leader_speed, {"tables": tables}),
+                    (phased_link_leader_speed, {"tables": tables}),
                     (allpairs.link_leader_speed, {}),
                 )
             ]  # fmt: skip

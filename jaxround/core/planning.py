@@ -1,0 +1,295 @@
+"""The phases of a vehicle's speed planning, after SUMO's methods.
+
+`jaxround.core.dynamics.planned_speed` runs them in SUMO's order, each a
+function of the state at the start of the step with a NamedTuple result:
+
+1. `start_speeds`: the initial ``v`` of ``MSVehicle::planMoveInternal``, a
+   TraCI speed command applied (``MSVehicle::Influencer::influenceSpeed``);
+2. `own_leader`: the leader on the vehicle's own lanes and the IDM's follow
+   speed (``MSLane::getLeader``, ``MSCFModel_IDM::followSpeed``);
+3. `lane_limits`: the speed limits of the lanes ahead and the free road
+   (``MSCFModel_IDM::freeSpeed`` in the look-ahead loop of planMoveInternal);
+4. `yield_line`: the stop at the yield line and the link leaders at the next
+   merge (``vWait``, ``MSLink::getLeaderInfo`` / ``checkLinkLeader``);
+5. `look_ahead`: every lane of the look-ahead, its rearmost vehicle and the
+   link leaders where it merges, as speed caps on each registration;
+6. `registrations`: ``MSVehicle::setApproachingForAllLinks`` (in
+   `jaxround.core.junction.register`), after the entry is judged on the
+   previous step's registrations;
+7. `entry_test`: ``MSLink::opened`` in ``MSVehicle::executeMove``, against
+   this step's registrations;
+8. `final_speed` in `dynamics`: ``MSCFModel::finalizeSpeed`` and
+   ``processTraCISpeedControl``.
+
+Shapes: M vehicle slots, K lanes per route, G legs (one merge each).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxround.core import command as traci
+from jaxround.core import idm
+from jaxround.core.geometry import NetArrays, leaders, locate
+from jaxround.core.insertion import STOP_OFFSET
+from jaxround.core.junction import brake_gap
+from jaxround.core.link_leaders import link_leader
+from jaxround.core.neighbours import NeighbourTables
+from jaxround.core.params import CarFollowing
+
+#: Vehicles per leg whose entry is tested each step (the nearest to the line).
+ENTRY_CANDIDATES = 2
+
+
+class Vehicles(NamedTuple):
+    """The state the planning reads, (M,) each, at time `t` of the step."""
+
+    route: jax.Array
+    pos: jax.Array
+    speed: jax.Array
+    speed_factor: jax.Array
+    active: jax.Array
+    waiting_s: jax.Array
+
+
+class Stepping(NamedTuple):
+    """Static settings: dt (s), the IDM's sub-steps, the action step (s)."""
+
+    dt: float
+    n_substeps: int
+    action_step: float
+
+
+class StartSpeeds(NamedTuple):
+    """`start_speeds`: lane_index int (M,) the route lane each front is on;
+    v_lane (M,) the desired speed there; v_start (M,) the speed planning
+    starts from; v_max_next, v_min_next (M,) the bounds of the next speed."""
+
+    lane_index: jax.Array
+    v_lane: jax.Array
+    v_start: jax.Array
+    v_max_next: jax.Array
+    v_min_next: jax.Array
+
+
+def start_speeds(
+    net: NetArrays,
+    car: CarFollowing,
+    veh: Vehicles,
+    *,
+    step: Stepping,
+    command: jax.Array | None,
+) -> StartSpeeds:
+    """planMoveInternal's initial v; a speed command (M,) (NaN: none)
+    replaces it, so every look-ahead speed (registrations, the entry's
+    arrival) starts from it."""
+    k, lane, _ = locate(net, veh.route, veh.pos)
+    v_lane = jnp.minimum(net.lane_speed[lane] * veh.speed_factor, car.max_speed)
+    v_max_next = traci.max_next_speed(veh.speed, car, step.dt)
+    v_min_next = traci.min_next_speed(veh.speed, car, step.dt)
+    v_start = jnp.minimum(veh.speed + car.accel * step.dt, v_lane)
+    if command is not None:
+        v_start = traci.influence_speed(
+            command, v_start, v_safe=v_start, v_max=v_max_next, v_min=v_min_next
+        )
+    return StartSpeeds(k, v_lane, v_start, v_max_next, v_min_next)
+
+
+class OwnLeader(NamedTuple):
+    """`own_leader`: slot int (M,) the vehicle ahead on the own lanes (-1 for
+    none); gap (M,) bumper to bumper; back (M,) its back along the follower's
+    route (inf for none); v_follow (M,) the speed the IDM allows behind it."""
+
+    slot: jax.Array
+    gap: jax.Array
+    back: jax.Array
+    v_follow: jax.Array
+
+
+def own_leader(
+    car: CarFollowing,
+    veh: Vehicles,
+    start: StartSpeeds,
+    tables: NeighbourTables,
+    *,
+    step: Stepping,
+) -> OwnLeader:
+    """The leader with any part ahead on the vehicle's lanes, and the IDM's
+    follow speed behind it (SUMO's getLeader, then followSpeed)."""
+    route, pos, speed = veh.route, veh.pos, veh.speed
+    fronts = (tables.back + car.length)[route]  # (M, M) along each route
+    leader, gap = leaders(fronts, pos, veh.active, car.length)
+    v_leader = jnp.where(leader >= 0, speed[jnp.maximum(leader, 0)], 0.0)
+    v_follow = idm.idm_follow_speed(
+        speed, v_leader, gap, start.v_lane, car.accel, car.decel, car.tau,
+        car.min_gap, car.delta, step.dt, step.n_substeps,
+    )  # fmt: skip
+    back = jnp.where(leader >= 0, tables.back[route, jnp.maximum(leader, 0)], jnp.inf)
+    return OwnLeader(leader, gap, back, v_follow)
+
+
+class LaneLimits(NamedTuple):
+    """`lane_limits`: per_lane (M, K) the speed each later lane's limit
+    allows (inf on the others); later bool (M, K) the lanes beyond the
+    current one; v_limits (M,) their minimum; v_free (M,) the free road up to
+    the route's end."""
+
+    per_lane: jax.Array
+    later: jax.Array
+    v_limits: jax.Array
+    v_free: jax.Array
+
+
+def lane_limits(
+    net: NetArrays,
+    car: CarFollowing,
+    veh: Vehicles,
+    start: StartSpeeds,
+    *,
+    step: Stepping,
+) -> LaneLimits:
+    """freeSpeed towards every lower limit ahead, and towards the arrival."""
+    route, pos, speed = veh.route, veh.pos, veh.speed
+    dt, n = step.dt, step.n_substeps
+    starts = net.route_lane_start[route]  # (M, K)
+    lanes_ahead = net.route_lanes[route]  # (M, K)
+    limit_ahead = jnp.minimum(
+        net.lane_speed[jnp.maximum(lanes_ahead, 0)] * veh.speed_factor[:, None],
+        car.max_speed,
+    )
+    seen = starts - pos[:, None]
+    k = start.lane_index
+    later = (jnp.arange(starts.shape[1])[None, :] > k[:, None]) & (lanes_ahead >= 0)
+    columns = car.columns()  # per-vehicle numbers against (M, K) arrays
+    v_limits = idm.idm_free_speed_ahead(
+        speed[:, None], seen, limit_ahead, start.v_lane[:, None], columns.accel,
+        car.decel, columns.tau, car.delta, dt, n,
+    )  # fmt: skip
+    v_limits = jnp.maximum(v_limits, speed[:, None] - car.decel * dt)
+    per_lane = jnp.where(later, v_limits, jnp.inf)  # (M, K)
+    to_end = net.route_length[route] - pos
+    v_free = idm.idm_free_speed(
+        speed, start.v_lane, car.accel, car.decel, car.tau, car.min_gap, car.delta,
+        dt, n, seen=to_end,
+    )  # fmt: skip
+    return LaneLimits(per_lane, later, jnp.min(per_lane, axis=1), v_free)
+
+
+def link_leader_speed(
+    net: NetArrays,
+    car: CarFollowing,
+    veh: Vehicles,
+    v_lane: jax.Array,
+    may_drive_to_line: jax.Array,
+    v_wait: jax.Array,
+    *,
+    step: Stepping,
+    tables: NeighbourTables,
+    km_fixed: int | jax.Array | None = None,
+) -> tuple[jax.Array, jax.Array]:
+    """The speed the link leaders at one merge allow (SUMO's checkLinkLeader).
+
+    The nearest link leader binds (IDM's speed falls with the gap); a negative
+    gap means "stop before the merging lane"; where `may_drive_to_line`, a
+    vehicle may always drive up to its yield line (`v_wait`) while the
+    leader's front is still on the merging lane.
+
+    Args:
+        may_drive_to_line: bool (M,) the vehicle is before its yield line and
+            this is its entry's merge.
+        km_fixed: the route lane index of the merge; default the next merge.
+
+    Returns:
+        (v, to_link): float (M,) the allowed speed (inf without link leader),
+        float (M,) distance to the start of the merging lane.
+    """
+    speed, dt, n = veh.speed, step.dt, step.n_substeps
+    lead = link_leader(
+        net, tables, veh.route, veh.pos, veh.active, car.min_gap, km_fixed=km_fixed
+    )
+    has, nearest, front_on_q, to_link = lead.has, lead.slot, lead.front_on, lead.to_link
+    gap = jnp.where(has, lead.gap, 0.0)
+    v = idm.idm_follow_speed(
+        speed, speed[nearest], gap + car.min_gap, v_lane, car.accel, car.decel,
+        car.tau, car.min_gap, car.delta, dt, n,
+    )  # fmt: skip
+    v_stop = idm.idm_stop_speed(
+        speed, to_link - STOP_OFFSET, v_lane, car.accel, car.decel, car.tau,
+        car.delta, dt, n, step.action_step,
+    )  # fmt: skip
+    v = jnp.where(gap >= 0, v, jnp.where(to_link > 0, v_stop, 0.0))
+    v = jnp.where(may_drive_to_line & front_on_q, jnp.maximum(v, v_wait), v)
+    return jnp.where(has, v, jnp.inf), to_link
+
+
+class YieldLine(NamedTuple):
+    """`yield_line`, (M,) each: to_line the distance to the yield line
+    (negative past it); v_wait the speed that stops there; v_link, to_link
+    the link leaders' speed at the next merge and the distance to it;
+    leave_cap v_link before the line (inf after); can_brake the vehicle can
+    still stop before the line; before_line active and before it;
+    impatience SUMO's getImpatience (grows with the waiting time)."""
+
+    to_line: jax.Array
+    v_wait: jax.Array
+    v_link: jax.Array
+    to_link: jax.Array
+    leave_cap: jax.Array
+    can_brake: jax.Array
+    before_line: jax.Array
+    impatience: jax.Array
+
+
+def yield_line(
+    net: NetArrays,
+    car: CarFollowing,
+    veh: Vehicles,
+    start: StartSpeeds,
+    tables: NeighbourTables,
+    *,
+    step: Stepping,
+) -> YieldLine:
+    """The entry's right of way: beyond the visibility distance a vehicle
+    always plans to stop at its yield line; within it, only if blocked. The
+    link leaders at the next merge cap the entry's leave speed."""
+    speed, dt = veh.speed, step.dt
+    to_line = net.yield_offset[veh.route] - veh.pos
+    v_wait = idm.idm_stop_speed(
+        speed, to_line - STOP_OFFSET, start.v_lane, car.accel, car.decel, car.tau,
+        car.delta, dt, step.n_substeps, step.action_step,
+    )  # fmt: skip
+    v_wait = jnp.where(to_line > 0, v_wait, 0.0)
+    v_link, to_link = link_leader_speed(
+        net, car, veh, start.v_lane, to_line > 0, v_wait, step=step, tables=tables
+    )
+    leave_cap = jnp.where(to_line > 0, v_link, jnp.inf)
+    can_brake = (to_line > brake_gap(speed, car.decel, 0.0, dt)) | (
+        speed < car.decel * dt
+    )
+    before_line = veh.active & (to_line > 0)
+    impatience = jnp.clip(
+        car.impatience + veh.waiting_s / car.time_to_impatience, 0.0, 1.0
+    )
+    return YieldLine(
+        to_line, v_wait, v_link, to_link, leave_cap, can_brake, before_line, impatience
+    )
+
+
+def follow_from(
+    v: jax.Array,
+    v_leader: jax.Array,
+    gap: jax.Array,
+    *,
+    car: CarFollowing,
+    v_lane: jax.Array,
+    step: Stepping,
+) -> jax.Array:
+    """SUMO's futureVSafe: followSpeed from a leave speed, (M,) or (M, G)."""
+    numbers = car.columns() if v.ndim == 2 else car
+    return idm.idm_follow_speed(
+        v, v_leader, gap, v_lane[:, None] if v.ndim == 2 else v_lane, numbers.accel,
+        car.decel, numbers.tau, car.min_gap, car.delta, step.dt, step.n_substeps,
+    )  # fmt: skip
