@@ -32,7 +32,8 @@ RingState = tuple[jax.Array, jax.Array, jax.Array]
 #: Table 2's accel/decel/tau, IDM delta 4, 50 km/h).
 RING_M = 100.0
 LENGTH_M = 5.0
-V0, ACCEL, DECEL, TAU, MIN_GAP, DELTA = 13.89, 1.76, 4.5, 1.35, 2.5, 4.0
+V0 = 13.89
+VTYPE = idm.IDMParams(accel=1.76, decel=4.5, tau=1.35, min_gap=2.5, delta=4.0)
 
 
 def bare_step(state: RingState, dt: float, n_substeps: int) -> RingState:
@@ -51,9 +52,9 @@ def bare_step(state: RingState, dt: float, n_substeps: int) -> RingState:
     gap = nearest - LENGTH_M
     gap = jnp.where(jnp.isfinite(gap), gap, 1e3)
     v_next = idm.idm_follow_speed(
-        v, v[leader], gap, V0, ACCEL, DECEL, TAU, MIN_GAP, DELTA, dt, n_substeps
+        v, v[leader], gap, V0, vtype=VTYPE, dt=dt, n_substeps=n_substeps
     )
-    v_next = jnp.where(active, jnp.clip(v_next, 0.0, v + ACCEL * dt), 0.0)
+    v_next = jnp.where(active, jnp.clip(v_next, 0.0, v + VTYPE.accel * dt), 0.0)
     return pos + v_next * dt, v_next, active
 
 

@@ -22,7 +22,9 @@ The formulas follow SUMO's source:
 * The bounds SUMO puts on the speed afterwards (``MSCFModel::finalizeSpeed``,
   ``MSVehicle::executeMove``) are in :mod:`jaxround.core.finalize`.
 
-One action step for a vehicle with leader / stops is::
+The vType's numbers travel as one `IDMParams` by keyword (``vtype=``);
+`jaxround.core.params.CarFollowing.idm` gives them per vehicle. One action
+step for a vehicle with leader / stops is::
 
     v_safe = min(idm_free_speed(...), idm_follow_speed(...), idm_stop_speed(...))
     v_next = finalize.next_speed(v, v_safe, v0, accel, decel, emergency_decel, dt, dt)
@@ -38,6 +40,8 @@ Euler update in that case (see its caveat).
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -55,6 +59,7 @@ FREE_GAP = 1e6
 
 __all__ = [
     "FREE_GAP",
+    "IDMParams",
     "IDM_STEPPING",
     "NUMERICAL_EPS",
     "idm_free_speed",
@@ -65,6 +70,25 @@ __all__ = [
     "idm_v",
     "maximum_safe_stop_speed_euler",
 ]
+
+
+class IDMParams(NamedTuple):
+    """A vType's IDM numbers (SUMO's names in brackets); scalars, or arrays
+    that broadcast against the speeds, e.g. (M,) or (M, 1) per vehicle.
+
+    Attributes:
+        accel: maximum acceleration ``a`` [accel] (m/s^2).
+        decel: comfortable deceleration ``b`` [decel] (m/s^2).
+        tau: time headway ``T`` [tau] (s).
+        min_gap: jam distance ``s0`` [minGap] (m).
+        delta: acceleration exponent [delta] (SUMO's default 4).
+    """
+
+    accel: ArrayLike
+    decel: ArrayLike
+    tau: ArrayLike
+    min_gap: ArrayLike
+    delta: ArrayLike
 
 
 def idm_substeps(dt: float, stepping: float = IDM_STEPPING) -> int:
@@ -86,11 +110,9 @@ def idm_v(
     v_leader: ArrayLike,
     gap: ArrayLike,
     v_des: ArrayLike,
-    accel: ArrayLike,
-    decel: ArrayLike,
-    tau: ArrayLike,
+    *,
+    vtype: IDMParams,
     s0: ArrayLike,
-    delta: ArrayLike,
     dt: ArrayLike,
     n_substeps: int | jax.Array,
 ) -> jax.Array:
@@ -106,11 +128,8 @@ def idm_v(
         v_leader: (...) leader speed, constant within the step (m/s).
         gap: (...) gap to the leader / obstacle as seen by the IDM (m).
         v_des: (...) desired speed ``v0`` (m/s); floored at 0.001.
-        accel: (...) maximum acceleration ``a`` (m/s^2).
-        decel: (...) comfortable deceleration ``b`` (m/s^2).
-        tau: (...) time headway ``T`` (s).
+        vtype: the IDM's numbers (its ``min_gap`` is not read: ``s0`` is).
         s0: (...) jam distance added to the desired gap (m).
-        delta: (...) acceleration exponent (SUMO default 4).
         dt: simulation step length (s).
         n_substeps: number of sub-steps, see :func:`idm_substeps`.
 
@@ -120,7 +139,8 @@ def idm_v(
     v, v_leader, gap = jnp.broadcast_arrays(
         *(jnp.asarray(x, dtype=jnp.result_type(float, x)) for x in (v, v_leader, gap))
     )
-    two_sqrt_ab = 2.0 * jnp.sqrt(accel * decel)
+    accel, tau, delta = vtype.accel, vtype.tau, vtype.delta
+    two_sqrt_ab = 2.0 * jnp.sqrt(accel * vtype.decel)
     v_des = jnp.maximum(NUMERICAL_EPS, v_des)
     h = dt / n_substeps
 
@@ -151,11 +171,8 @@ def idm_follow_speed(
     v_leader: ArrayLike,
     gap: ArrayLike,
     v0: ArrayLike,
-    accel: ArrayLike,
-    decel: ArrayLike,
-    tau: ArrayLike,
-    min_gap: ArrayLike,
-    delta: ArrayLike,
+    *,
+    vtype: IDMParams,
     dt: ArrayLike,
     n_substeps: int | jax.Array,
 ) -> jax.Array:
@@ -172,11 +189,7 @@ def idm_follow_speed(
         v_leader: (...) leader speed at the start of the step (m/s).
         gap: (...) bumper-to-bumper gap (m).
         v0: (...) desired speed: ``min(lane limit * speedFactor, maxSpeed)``.
-        accel: (...) vType accel (m/s^2).
-        decel: (...) vType decel (m/s^2).
-        tau: (...) vType tau (s).
-        min_gap: (...) vType minGap, the IDM's ``s0`` (m).
-        delta: (...) IDM exponent (default 4).
+        vtype: the IDM's numbers; its ``min_gap`` is the IDM's ``s0``.
         dt: simulation step length (s).
         n_substeps: see :func:`idm_substeps`.
 
@@ -184,8 +197,9 @@ def idm_follow_speed(
         (...) safe speed for the end of the step (before :func:`finalize_speed`).
     """
     return idm_v(
-        v, v_leader, gap, v0, accel, decel, tau, min_gap, delta, dt, n_substeps
-    )
+        v, v_leader, gap, v0, vtype=vtype, s0=vtype.min_gap, dt=dt,
+        n_substeps=n_substeps,
+    )  # fmt: skip
 
 
 def idm_free_speed_ahead(
@@ -193,10 +207,8 @@ def idm_free_speed_ahead(
     seen: ArrayLike,
     v_limit: ArrayLike,
     v0: ArrayLike,
-    accel: ArrayLike,
-    decel: ArrayLike,
-    tau: ArrayLike,
-    delta: ArrayLike,
+    *,
+    vtype: IDMParams,
     dt: ArrayLike,
     n_substeps: int | jax.Array,
 ) -> jax.Array:
@@ -215,10 +227,7 @@ def idm_free_speed_ahead(
         seen: (...) distance to where ``v_limit`` starts (m).
         v_limit: (...) the speed limit ahead (vehicle-specific, m/s).
         v0: (...) desired speed on the current lane (m/s).
-        accel: (...) vType accel.
-        decel: (...) vType decel.
-        tau: (...) vType tau.
-        delta: (...) IDM exponent.
+        vtype: the IDM's numbers (no minGap: ``s0`` is 0).
         dt: simulation step length (s).
         n_substeps: see :func:`idm_substeps`.
 
@@ -226,13 +235,12 @@ def idm_free_speed_ahead(
         (...) the speed the limit allows.
     """
     v = jnp.asarray(v, dtype=jnp.result_type(float, v))
-    two_sqrt_ab = 2.0 * jnp.sqrt(accel * decel)
-    sec_gap = jnp.maximum(0.0, v_limit * tau + v_limit * v_limit / two_sqrt_ab)
-    v_acc = idm_v(
-        v, v_limit, FREE_GAP, v0, accel, decel, tau, 0.0, delta, dt, n_substeps
-    )
+    two_sqrt_ab = 2.0 * jnp.sqrt(vtype.accel * vtype.decel)
+    sec_gap = jnp.maximum(0.0, v_limit * vtype.tau + v_limit * v_limit / two_sqrt_ab)
+    stepping = {"vtype": vtype, "s0": 0.0, "dt": dt, "n_substeps": n_substeps}
+    v_acc = idm_v(v, v_limit, FREE_GAP, v0, **stepping)
     obstacle = jnp.maximum(seen, sec_gap)
-    v_dec = idm_v(v, 0.0, obstacle, v0, accel, decel, tau, 0.0, delta, dt, n_substeps)
+    v_dec = idm_v(v, 0.0, obstacle, v0, **stepping)
     v_safe = jnp.where(v <= v_limit, v_acc, v_dec)
     v_safe = jnp.where(seen < sec_gap, jnp.minimum(v_safe, v_limit), v_safe)
     # a negative limit (ballistic red-light case) is returned as it is
@@ -242,11 +250,8 @@ def idm_free_speed_ahead(
 def idm_free_speed(
     v: ArrayLike,
     v0: ArrayLike,
-    accel: ArrayLike,
-    decel: ArrayLike,
-    tau: ArrayLike,
-    min_gap: ArrayLike,
-    delta: ArrayLike,
+    *,
+    vtype: IDMParams,
     dt: ArrayLike,
     n_substeps: int | jax.Array,
     seen: ArrayLike = FREE_GAP,
@@ -254,19 +259,15 @@ def idm_free_speed(
     """Free-road IDM speed: SUMO's ``freeSpeed`` for the current lane's limit.
 
     For ``v <= v0`` this is ``_v(gap=1e6, vL=v0, desSpeed=v0)`` without minGap
-    (``min_gap`` is accepted for symmetry with :func:`idm_follow_speed` but, as
-    in SUMO, not used). For ``v > v0`` (the limit dropped) SUMO brakes towards
-    a standing obstacle at ``max(seen, secure gap)``; ``seen`` is the distance
-    SUMO passes (to the lane end / arrival point), by default far away.
+    (as in SUMO, ``vtype.min_gap`` is not used). For ``v > v0`` (the limit
+    dropped) SUMO brakes towards a standing obstacle at ``max(seen, secure
+    gap)``; ``seen`` is the distance SUMO passes (to the lane end / arrival
+    point), by default far away.
 
     Args:
         v: (...) current speed (m/s).
         v0: (...) desired speed ``min(lane limit * speedFactor, maxSpeed)``.
-        accel: (...) vType accel.
-        decel: (...) vType decel.
-        tau: (...) vType tau.
-        min_gap: (...) vType minGap (unused, see above).
-        delta: (...) IDM exponent.
+        vtype: the IDM's numbers.
         dt: simulation step length (s).
         n_substeps: see :func:`idm_substeps`.
         seen: (...) distance SUMO passes as ``seen`` (m).
@@ -274,9 +275,8 @@ def idm_free_speed(
     Returns:
         (...) free-road speed for the end of the step.
     """
-    del min_gap
     return idm_free_speed_ahead(
-        v, seen, v0, v0, accel, decel, tau, delta, dt, n_substeps
+        v, seen, v0, v0, vtype=vtype, dt=dt, n_substeps=n_substeps
     )
 
 
@@ -310,10 +310,8 @@ def idm_stop_speed(
     v: ArrayLike,
     distance: ArrayLike,
     v0: ArrayLike,
-    accel: ArrayLike,
-    decel: ArrayLike,
-    tau: ArrayLike,
-    delta: ArrayLike,
+    *,
+    vtype: IDMParams,
     dt: ArrayLike,
     n_substeps: int | jax.Array,
     action_step: ArrayLike | None = None,
@@ -342,10 +340,7 @@ def idm_stop_speed(
         v: (...) current speed (m/s).
         distance: (...) distance from the front bumper to the stop point (m).
         v0: (...) desired speed (m/s).
-        accel: (...) vType accel.
-        decel: (...) vType decel.
-        tau: (...) vType tau.
-        delta: (...) IDM exponent.
+        vtype: the IDM's numbers (no minGap: ``s0`` is 0).
         dt: simulation step length (s).
         n_substeps: see :func:`idm_substeps`.
         action_step: action step length (s), default ``dt``.
@@ -355,8 +350,10 @@ def idm_stop_speed(
     """
     action_step = dt if action_step is None else action_step
     v = jnp.asarray(v, dtype=jnp.result_type(float, v))
-    result = idm_v(v, 0.0, distance, v0, accel, decel, tau, 0.0, delta, dt, n_substeps)
-    creep = maximum_safe_stop_speed_euler(distance, decel, action_step, dt)
+    result = idm_v(
+        v, 0.0, distance, v0, vtype=vtype, s0=0.0, dt=dt, n_substeps=n_substeps
+    )
+    creep = maximum_safe_stop_speed_euler(distance, vtype.decel, action_step, dt)
     stuck = (distance > 0.0) & (v < NUMERICAL_EPS) & (result < NUMERICAL_EPS)
     result = jnp.where(stuck, creep, result)
     result = jnp.minimum(result, jnp.maximum(distance, 0.0) / dt)

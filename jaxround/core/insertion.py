@@ -43,8 +43,8 @@ def insertion_speed(
 
     def follow(speed: jax.Array) -> jax.Array:
         return idm.idm_follow_speed(
-            speed, v_leader, gap + p.min_gap, v0, p.accel, p.decel, p.tau,
-            p.min_gap, p.delta, dt, n_substeps,
+            speed, v_leader, gap + p.min_gap, v0, vtype=p.idm, dt=dt,
+            n_substeps=n_substeps,
         )  # fmt: skip
 
     def iterate(carry: tuple[jax.Array, jax.Array, jax.Array]):
@@ -98,7 +98,7 @@ def insertion_stop_speed(
         reach = brake_gap(speed, p.decel, p.tau, dt) + p.min_gap
         too_fast = reach > seen - STOP_OFFSET
         s2 = idm.idm_v(
-            speed, 0.0, seen, v0, p.accel, p.decel, p.tau, 0.0, p.delta, dt, n_substeps
+            speed, 0.0, seen, v0, vtype=p.idm, s0=0.0, dt=dt, n_substeps=n_substeps
         )
         lowered = jnp.where(too_fast, jnp.minimum(s2, speed), speed)
         return i + 1, lowered, jnp.any(lowered != speed)

@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from jaxround.core.idm import IDMParams
 from jaxround.scenario.config import SHARED_DRIVER_FIELDS, DriverConfig, ScenarioConfig
 
 #: Seconds of waiting that add 1 to a driver's impatience (SUMO's
@@ -132,6 +133,11 @@ class CarFollowing:
     max_speed: jax.Array
     time_to_impatience: jax.Array
     relax_temperature: jax.Array
+
+    @property
+    def idm(self) -> IDMParams:
+        """The IDM's numbers of each vehicle (`jaxround.core.idm`)."""
+        return IDMParams(self.accel, self.decel, self.tau, self.min_gap, self.delta)
 
     def columns(self) -> CarFollowing:
         """Per-vehicle fields (M,) as (M, 1), to broadcast against (M, K) arrays."""

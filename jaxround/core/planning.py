@@ -124,8 +124,8 @@ def own_leader(
     leader, gap = leaders(fronts, pos, veh.active, car.length)
     v_leader = jnp.where(leader >= 0, speed[jnp.maximum(leader, 0)], 0.0)
     v_follow = idm.idm_follow_speed(
-        speed, v_leader, gap, start.v_lane, car.accel, car.decel, car.tau,
-        car.min_gap, car.delta, step.dt, step.n_substeps,
+        speed, v_leader, gap, start.v_lane, vtype=car.idm, dt=step.dt,
+        n_substeps=step.n_substeps,
     )  # fmt: skip
     back = jnp.where(leader >= 0, tables.back[route, jnp.maximum(leader, 0)], jnp.inf)
     return OwnLeader(leader, gap, back, v_follow)
@@ -153,7 +153,7 @@ def lane_limits(
 ) -> LaneLimits:
     """freeSpeed towards every lower limit ahead, and towards the arrival."""
     route, pos, speed = veh.route, veh.pos, veh.speed
-    dt, n = step.dt, step.n_substeps
+    dt = step.dt
     starts = net.route_lane_start[route]  # (M, K)
     lanes_ahead = net.route_lanes[route]  # (M, K)
     limit_ahead = jnp.minimum(
@@ -165,15 +165,15 @@ def lane_limits(
     later = (jnp.arange(starts.shape[1])[None, :] > k[:, None]) & (lanes_ahead >= 0)
     columns = car.columns()  # per-vehicle numbers against (M, K) arrays
     v_limits = idm.idm_free_speed_ahead(
-        speed[:, None], seen, limit_ahead, start.v_lane[:, None], columns.accel,
-        car.decel, columns.tau, car.delta, dt, n,
+        speed[:, None], seen, limit_ahead, start.v_lane[:, None],
+        vtype=columns.idm, dt=dt, n_substeps=step.n_substeps,
     )  # fmt: skip
     v_limits = jnp.maximum(v_limits, speed[:, None] - car.decel * dt)
     per_lane = jnp.where(later, v_limits, jnp.inf)  # (M, K)
     to_end = net.route_length[route] - pos
     v_free = idm.idm_free_speed(
-        speed, start.v_lane, car.accel, car.decel, car.tau, car.min_gap, car.delta,
-        dt, n, seen=to_end,
+        speed, start.v_lane, vtype=car.idm, dt=dt, n_substeps=step.n_substeps,
+        seen=to_end,
     )  # fmt: skip
     return LaneLimits(per_lane, later, jnp.min(per_lane, axis=1), v_free)
 
@@ -206,20 +206,19 @@ def link_leader_speed(
         (v, to_link): float (M,) the allowed speed (inf without link leader),
         float (M,) distance to the start of the merging lane.
     """
-    speed, dt, n = veh.speed, step.dt, step.n_substeps
+    speed = veh.speed
     lead = link_leader(
         net, tables, veh.route, veh.pos, veh.active, car.min_gap, km_fixed=km_fixed
     )
     has, nearest, front_on_q, to_link = lead.has, lead.slot, lead.front_on, lead.to_link
     gap = jnp.where(has, lead.gap, 0.0)
+    stepping = {"vtype": car.idm, "dt": step.dt, "n_substeps": step.n_substeps}
     v = idm.idm_follow_speed(
-        speed, speed[nearest], gap + car.min_gap, v_lane, car.accel, car.decel,
-        car.tau, car.min_gap, car.delta, dt, n,
-    )  # fmt: skip
+        speed, speed[nearest], gap + car.min_gap, v_lane, **stepping
+    )
     v_stop = idm.idm_stop_speed(
-        speed, to_link - STOP_OFFSET, v_lane, car.accel, car.decel, car.tau,
-        car.delta, dt, n, step.action_step,
-    )  # fmt: skip
+        speed, to_link - STOP_OFFSET, v_lane, **stepping, action_step=step.action_step
+    )
     v = jnp.where(gap >= 0, v, jnp.where(to_link > 0, v_stop, 0.0))
     v = jnp.where(may_drive_to_line & front_on_q, jnp.maximum(v, v_wait), v)
     return jnp.where(has, v, jnp.inf), to_link
@@ -258,8 +257,8 @@ def yield_line(
     speed, dt = veh.speed, step.dt
     to_line = net.yield_offset[veh.route] - veh.pos
     v_wait = idm.idm_stop_speed(
-        speed, to_line - STOP_OFFSET, start.v_lane, car.accel, car.decel, car.tau,
-        car.delta, dt, step.n_substeps, step.action_step,
+        speed, to_line - STOP_OFFSET, start.v_lane, vtype=car.idm, dt=dt,
+        n_substeps=step.n_substeps, action_step=step.action_step,
     )  # fmt: skip
     v_wait = jnp.where(to_line > 0, v_wait, 0.0)
     v_link, to_link = link_leader_speed(
@@ -290,6 +289,6 @@ def follow_from(
     """SUMO's futureVSafe: followSpeed from a leave speed, (M,) or (M, G)."""
     numbers = car.columns() if v.ndim == 2 else car
     return idm.idm_follow_speed(
-        v, v_leader, gap, v_lane[:, None] if v.ndim == 2 else v_lane, numbers.accel,
-        car.decel, numbers.tau, car.min_gap, car.delta, step.dt, step.n_substeps,
+        v, v_leader, gap, v_lane[:, None] if v.ndim == 2 else v_lane,
+        vtype=numbers.idm, dt=step.dt, n_substeps=step.n_substeps,
     )  # fmt: skip

@@ -102,8 +102,7 @@ def look_ahead(
     ahead_has, ahead_slot, ahead_gap = rearmost
     v_follow_k = idm.idm_follow_speed(
         speed[:, None], speed[ahead_slot], ahead_gap, start.v_lane[:, None],
-        columns.accel, car.decel, columns.tau, car.min_gap, car.delta, step.dt,
-        step.n_substeps,
+        vtype=columns.idm, dt=step.dt, n_substeps=step.n_substeps,
     )  # fmt: skip
     k = start.lane_index
     mine = (jnp.arange(starts.shape[1])[None, :] >= k[:, None]) & (lanes_k >= 0)

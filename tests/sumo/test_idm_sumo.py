@@ -28,6 +28,7 @@ TAU = 1.3472
 MIN_GAP = 2.5
 EMERGENCY_DECEL = 9.0
 DELTA = 4.0
+VTYPE = idm.IDMParams(accel=ACCEL, decel=DECEL, tau=TAU, min_gap=MIN_GAP, delta=DELTA)
 LANE_SPEED = 15.0
 EDGE_LENGTH = 3000.0
 LEADER_LENGTH = 4.5
@@ -58,7 +59,7 @@ def test_free_road_from_standstill(dt: float) -> None:
     v = 0.0
     for _ in range(n):
         v = v + ACCEL * (1.0 - (v / LANE_SPEED) ** 4) * h
-    v_free = idm.idm_free_speed(0.0, LANE_SPEED, ACCEL, DECEL, TAU, MIN_GAP, 4.0, dt, n)
+    v_free = idm.idm_free_speed(0.0, LANE_SPEED, vtype=VTYPE, dt=dt, n_substeps=n)
     assert float(v_free) == pytest.approx(v, rel=1e-6)
     assert v < ACCEL * dt  # slightly below the acceleration bound
     v_next = finalize.next_speed(
@@ -69,21 +70,21 @@ def test_free_road_from_standstill(dt: float) -> None:
 
 def test_standstill_behind_stopped_leader() -> None:
     dt, n = 0.5, 2
-    args = (LANE_SPEED, ACCEL, DECEL, TAU, MIN_GAP, DELTA, dt, n)
+    kw = {"vtype": VTYPE, "dt": dt, "n_substeps": n}
     # bumper-to-bumper gap == minGap: the IDM's acceleration is exactly 0
-    assert float(idm.idm_follow_speed(0.0, 0.0, MIN_GAP, *args)) == 0.0
+    assert float(idm.idm_follow_speed(0.0, 0.0, MIN_GAP, LANE_SPEED, **kw)) == 0.0
     # closer than minGap: it would brake, the speed stays 0
-    assert float(idm.idm_follow_speed(0.0, 0.0, 1.0, *args)) == 0.0
+    assert float(idm.idm_follow_speed(0.0, 0.0, 1.0, LANE_SPEED, **kw)) == 0.0
     # a hair further: the IDM creeps by a few 1e-5 m/s, which SUMO's
     # executeMove snaps to 0 (|v| < 0.1 * NUMERICAL_EPS * dt), as measured
-    creep = idm.idm_follow_speed(0.0, 0.0, MIN_GAP + 5.5e-5, *args)
+    creep = idm.idm_follow_speed(0.0, 0.0, MIN_GAP + 5.5e-5, LANE_SPEED, **kw)
     assert 0.0 < float(creep) < 0.1 * idm.NUMERICAL_EPS * dt
     v = finalize.next_speed(
         0.0, creep, LANE_SPEED, ACCEL, DECEL, EMERGENCY_DECEL, dt, dt
     )
     assert float(v) == 0.0
     # a real gap: it starts
-    assert float(idm.idm_follow_speed(0.0, 0.0, 10.0, *args)) > 0.5
+    assert float(idm.idm_follow_speed(0.0, 0.0, 10.0, LANE_SPEED, **kw)) > 0.5
 
 
 def test_finalize_bounds() -> None:
@@ -117,15 +118,17 @@ def test_finalize_bounds() -> None:
 
 def test_stop_speed() -> None:
     dt, n = 0.5, 2
-    args = (LANE_SPEED, ACCEL, DECEL, TAU, DELTA, dt, n)
-    assert float(idm.idm_stop_speed(5.0, 0.005, *args)) == 0.0
-    assert float(idm.idm_stop_speed(5.0, -1.0, *args)) == 0.0
+    kw = {"vtype": VTYPE, "dt": dt, "n_substeps": n}
+    assert float(idm.idm_stop_speed(5.0, 0.005, LANE_SPEED, **kw)) == 0.0
+    assert float(idm.idm_stop_speed(5.0, -1.0, LANE_SPEED, **kw)) == 0.0
     # standing 2 cm before the stop: the IDM gives 0, SUMO falls back to the
     # Krauss stop speed with headway = action step: (0.02 - 0.001) / 0.5
-    assert float(idm.idm_stop_speed(0.0, 0.02, *args)) == pytest.approx(0.038)
+    assert float(idm.idm_stop_speed(0.0, 0.02, LANE_SPEED, **kw)) == pytest.approx(
+        0.038
+    )
     # a stop far away is free road with the jam distance dropped
-    far = idm.idm_stop_speed(10.0, 1e6, *args)
-    free = idm.idm_free_speed(10.0, LANE_SPEED, ACCEL, DECEL, TAU, MIN_GAP, 4.0, dt, n)
+    far = idm.idm_stop_speed(10.0, 1e6, LANE_SPEED, **kw)
+    free = idm.idm_free_speed(10.0, LANE_SPEED, **kw)
     assert float(far) == pytest.approx(float(free), abs=1e-5)
 
 
@@ -135,7 +138,7 @@ def test_jit_vmap_float32() -> None:
 
     def step(v, v_leader, gap, v0):
         vs = idm.idm_follow_speed(
-            v, v_leader, gap, v0, ACCEL, DECEL, TAU, 2.5, 4.0, dt, n
+            v, v_leader, gap, v0, vtype=VTYPE, dt=dt, n_substeps=n
         )
         return finalize.next_speed(v, vs, v0, ACCEL, DECEL, EMERGENCY_DECEL, dt, dt)
 
@@ -299,18 +302,13 @@ def _replay_fn(dt: float, has_leader: bool, has_stop: bool):
         # SUMO's freeSpeed on the last edge gets seen = distance to the
         # arrival point - vLane * dt (only matters above the speed limit)
         seen = remaining - v_lane * dt
-        v_safe = idm.idm_free_speed(
-            v, v_lane, ACCEL, DECEL, TAU, MIN_GAP, DELTA, dt, n, seen=seen
-        )
+        kw = {"vtype": VTYPE, "dt": dt, "n_substeps": n}
+        v_safe = idm.idm_free_speed(v, v_lane, **kw, seen=seen)
         if has_leader:
-            v_follow = idm.idm_follow_speed(
-                v, v_leader, gap, v_lane, ACCEL, DECEL, TAU, MIN_GAP, DELTA, dt, n
-            )
+            v_follow = idm.idm_follow_speed(v, v_leader, gap, v_lane, **kw)
             v_safe = jnp.minimum(v_safe, v_follow)
         if has_stop:
-            v_stop = idm.idm_stop_speed(
-                v, to_stop, v_lane, ACCEL, DECEL, TAU, DELTA, dt, n, action_step=dt
-            )
+            v_stop = idm.idm_stop_speed(v, to_stop, v_lane, **kw, action_step=dt)
             v_safe = jnp.minimum(v_safe, v_stop)
         v_next = finalize.next_speed(
             v, v_safe, v_lane, ACCEL, DECEL, EMERGENCY_DECEL, dt, dt

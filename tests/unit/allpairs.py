@@ -189,12 +189,12 @@ def link_leader_speed(
     gap = jnp.where(has, jnp.min(gap, axis=1), 0.0)
     front_on_q = jnp.take_along_axis(front_on_q, nearest[:, None], 1)[:, 0]
     v = idm.idm_follow_speed(
-        speed, speed[nearest], gap + p.min_gap, v_lane, p.accel, p.decel, p.tau,
-        p.min_gap, p.delta, dt, n_substeps,
+        speed, speed[nearest], gap + p.min_gap, v_lane, vtype=p.idm, dt=dt,
+        n_substeps=n_substeps,
     )  # fmt: skip
     v_stop = idm.idm_stop_speed(
-        speed, to_link - STOP_OFFSET, v_lane, p.accel, p.decel, p.tau, p.delta, dt,
-        n_substeps, action_step,
+        speed, to_link - STOP_OFFSET, v_lane, vtype=p.idm, dt=dt,
+        n_substeps=n_substeps, action_step=action_step,
     )  # fmt: skip
     v = jnp.where(gap >= 0, v, jnp.where(to_link > 0, v_stop, 0.0))
     v = jnp.where(may_drive_to_line & front_on_q, jnp.maximum(v, v_wait), v)
