@@ -146,8 +146,8 @@ def final_speed(
     v_safe = jnp.minimum(jnp.minimum(v_follow, limits.v_limits), limits.v_free)
     v_safe = blend(must_stop_w, v_before_line, v_safe)
     v_next = finalize.next_speed(
-        speed, v_safe, start.v_lane, car.accel, car.decel, car.emergency_decel, dt,
-        step.action_step,
+        speed, v_safe, start.v_lane, accel=car.accel, decel=car.decel,
+        emergency_decel=car.emergency_decel, dt=dt, action_step=step.action_step,
     )  # fmt: skip
     if command is not None:  # executeMove -> processTraCISpeedControl
         v_next = traci.influence_speed(

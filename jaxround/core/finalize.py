@@ -24,6 +24,7 @@ def finalize_speed(
     v: ArrayLike,
     v_safe: ArrayLike,
     v_lane: ArrayLike,
+    *,
     accel: ArrayLike,
     decel: ArrayLike,
     emergency_decel: ArrayLike,
@@ -96,6 +97,7 @@ def next_speed(
     v: ArrayLike,
     v_safe: ArrayLike,
     v_lane: ArrayLike,
+    *,
     accel: ArrayLike,
     decel: ArrayLike,
     emergency_decel: ArrayLike,
@@ -118,8 +120,9 @@ def next_speed(
         (...) the speed SUMO reports after the step.
     """
     v_fin = finalize_speed(
-        v, v_safe, v_lane, accel, decel, emergency_decel, dt, action_step
-    )
+        v, v_safe, v_lane, accel=accel, decel=decel, emergency_decel=emergency_decel,
+        dt=dt, action_step=action_step,
+    )  # fmt: skip
     return snap_speed(v_fin, dt)
 
 

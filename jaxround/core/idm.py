@@ -27,7 +27,7 @@ The vType's numbers travel as one `IDMParams` by keyword (``vtype=``);
 step for a vehicle with leader / stops is::
 
     v_safe = min(idm_free_speed(...), idm_follow_speed(...), idm_stop_speed(...))
-    v_next = finalize.next_speed(v, v_safe, v0, accel, decel, emergency_decel, dt, dt)
+    v_next = finalize.next_speed(v, v_safe, v0, accel=..., decel=..., ...)
     x_next = x + v_next * dt
 
 ``v0`` (SUMO's ``desSpeed``) is ``MSLane::getVehicleMaxSpeed``: the lane speed

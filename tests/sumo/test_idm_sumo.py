@@ -36,6 +36,12 @@ FOLLOWER_MAX_SPEED = 50.0
 TOL = 1e-3  # m/s
 
 
+def bounds_at(dt: float) -> dict[str, float]:
+    """`finalize`'s keyword numbers of the test vType, action step = dt."""
+    return {"accel": ACCEL, "decel": DECEL, "emergency_decel": EMERGENCY_DECEL,
+            "dt": dt, "action_step": dt}  # fmt: skip
+
+
 # --------------------------------------------------------------------------
 # hand-computed values
 # --------------------------------------------------------------------------
@@ -62,9 +68,7 @@ def test_free_road_from_standstill(dt: float) -> None:
     v_free = idm.idm_free_speed(0.0, LANE_SPEED, vtype=VTYPE, dt=dt, n_substeps=n)
     assert float(v_free) == pytest.approx(v, rel=1e-6)
     assert v < ACCEL * dt  # slightly below the acceleration bound
-    v_next = finalize.next_speed(
-        0.0, v_free, LANE_SPEED, ACCEL, DECEL, EMERGENCY_DECEL, dt, dt
-    )
+    v_next = finalize.next_speed(0.0, v_free, LANE_SPEED, **bounds_at(dt))
     assert float(v_next) == pytest.approx(v, rel=1e-6)
 
 
@@ -79,9 +83,7 @@ def test_standstill_behind_stopped_leader() -> None:
     # executeMove snaps to 0 (|v| < 0.1 * NUMERICAL_EPS * dt), as measured
     creep = idm.idm_follow_speed(0.0, 0.0, MIN_GAP + 5.5e-5, LANE_SPEED, **kw)
     assert 0.0 < float(creep) < 0.1 * idm.NUMERICAL_EPS * dt
-    v = finalize.next_speed(
-        0.0, creep, LANE_SPEED, ACCEL, DECEL, EMERGENCY_DECEL, dt, dt
-    )
+    v = finalize.next_speed(0.0, creep, LANE_SPEED, **bounds_at(dt))
     assert float(v) == 0.0
     # a real gap: it starts
     assert float(idm.idm_follow_speed(0.0, 0.0, 10.0, LANE_SPEED, **kw)) > 0.5
@@ -89,30 +91,28 @@ def test_standstill_behind_stopped_leader() -> None:
 
 def test_finalize_bounds() -> None:
     dt = 0.5
-    bounds = (ACCEL, DECEL, EMERGENCY_DECEL, dt, dt)
+    bounds = bounds_at(dt)
     # leader stopped dead ahead: v_safe 0 is capped by the emergency decel
     assert float(
-        finalize.finalize_speed(12.0, 0.0, LANE_SPEED, *bounds)
+        finalize.finalize_speed(12.0, 0.0, LANE_SPEED, **bounds)
     ) == pytest.approx(12.0 - EMERGENCY_DECEL * dt)
     # v_safe between the comfortable and the emergency bound: taken as it is
-    assert float(finalize.finalize_speed(12.0, 8.5, LANE_SPEED, *bounds)) == 8.5
+    assert float(finalize.finalize_speed(12.0, 8.5, LANE_SPEED, **bounds)) == 8.5
     # v_safe above the comfortable bound: taken as it is
-    assert float(finalize.finalize_speed(12.0, 11.0, LANE_SPEED, *bounds)) == 11.0
+    assert float(finalize.finalize_speed(12.0, 11.0, LANE_SPEED, **bounds)) == 11.0
     # accelerating: bounded by accel * dt
     assert float(
-        finalize.finalize_speed(5.0, 20.0, LANE_SPEED, *bounds)
+        finalize.finalize_speed(5.0, 20.0, LANE_SPEED, **bounds)
     ) == pytest.approx(5.0 + ACCEL * dt)
     # above the lane limit (limit dropped): at most the comfortable decel
-    assert float(finalize.finalize_speed(15.0, 20.0, 10.0, *bounds)) == pytest.approx(
+    assert float(finalize.finalize_speed(15.0, 20.0, 10.0, **bounds)) == pytest.approx(
         15.0 - DECEL * dt
     )
     # action step 1 s at dt 0.5: only half way to the lane speed
-    v = finalize.finalize_speed(
-        10.0, 20.0, 10.5, ACCEL, DECEL, EMERGENCY_DECEL, dt, 1.0
-    )
+    v = finalize.finalize_speed(10.0, 20.0, 10.5, **{**bounds, "action_step": 1.0})
     assert float(v) == pytest.approx(10.25)
     # low decel: MSCFModel_IDM::minNextSpeed uses max(decel, min(emergency, 1.5))
-    v = finalize.finalize_speed(10.0, 20.0, 5.0, ACCEL, 1.0, EMERGENCY_DECEL, dt, dt)
+    v = finalize.finalize_speed(10.0, 20.0, 5.0, **{**bounds, "decel": 1.0})
     assert float(v) == pytest.approx(10.0 - 1.5 * dt)
 
 
@@ -140,7 +140,7 @@ def test_jit_vmap_float32() -> None:
         vs = idm.idm_follow_speed(
             v, v_leader, gap, v0, vtype=VTYPE, dt=dt, n_substeps=n
         )
-        return finalize.next_speed(v, vs, v0, ACCEL, DECEL, EMERGENCY_DECEL, dt, dt)
+        return finalize.next_speed(v, vs, v0, **bounds_at(dt))
 
     v = jnp.linspace(0.0, 14.0, 8)
     out = jax.jit(jax.vmap(step))(v, v[::-1], jnp.full(8, 20.0), jnp.full(8, 15.0))
@@ -310,9 +310,7 @@ def _replay_fn(dt: float, has_leader: bool, has_stop: bool):
         if has_stop:
             v_stop = idm.idm_stop_speed(v, to_stop, v_lane, **kw, action_step=dt)
             v_safe = jnp.minimum(v_safe, v_stop)
-        v_next = finalize.next_speed(
-            v, v_safe, v_lane, ACCEL, DECEL, EMERGENCY_DECEL, dt, dt
-        )
+        v_next = finalize.next_speed(v, v_safe, v_lane, **bounds_at(dt))
         dx = v_next * dt
         return (v_next, gap + d_leader - dx, remaining - dx, to_stop - dx), v_next
 
