@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 
@@ -30,11 +31,13 @@ class ProgressBar:
     def __call__(self, update: int, metrics: dict[str, Any]) -> None:
         """One more update done, with these metrics."""
         self.bar.update(1)
-        self.bar.set_postfix_str(
-            f"{metrics['env_steps_per_s']:,.0f} env-steps/s, "
-            f"return {metrics['episode_return']:.2f}, "
-            f"AV crossing {metrics['av_crossing_time_s']:.1f} s"
-        )
+        speed = f"{metrics['env_steps_per_s']:,.0f} env-steps/s"
+        ret, crossing = metrics["episode_return"], metrics["av_crossing_time_s"]
+        if math.isfinite(ret) and math.isfinite(crossing):
+            episodes = f"return {ret:.2f}, AV crossing {crossing:.1f} s"
+        else:  # the means over AVs that left in this update: none did
+            episodes = "no AV left the roundabouts in this update"
+        self.bar.set_postfix_str(f"{speed}, {episodes}")
 
     def close(self) -> None:
         self.bar.close()
