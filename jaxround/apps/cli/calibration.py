@@ -119,7 +119,9 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--targets", type=Path, required=True, help="from jaxround measure")
     p.add_argument(
         "--params", default="accel,tau,jm_timegap_minor",
-        help="EnvParams to fit, comma-separated (default accel,tau,jm_timegap_minor)",
+        help="human-driver numbers to fit, comma-separated, among accel, decel, "
+        "tau, min_gap, delta, jm_timegap_minor, impatience (default "
+        "accel,tau,jm_timegap_minor)",
     )  # fmt: skip
     p.add_argument("--out", type=Path, required=True, help="folder to write into")
     p.add_argument("--starts", type=positive_int, default=4, help="random starts")
