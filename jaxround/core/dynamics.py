@@ -21,22 +21,19 @@ from jaxround.core.junction import brake_gap
 from jaxround.core.neighbours import build_tables
 from jaxround.core.params import CarFollowing
 from jaxround.core.planning import (
-    ENTRY_CANDIDATES,
     LaneLimits,
     OwnLeader,
     StartSpeeds,
     Stepping,
     Vehicles,
     YieldLine,
-    link_leader_speed,
 )
 from jaxround.core.relax import blend, soft_or
 from jaxround.core.right_of_way import Requests
 from jaxround.core.state import Registrations
 
 __all__ = [
-    "ARRIVAL_EPS", "DEPART_OFFSET", "ENTRY_CANDIDATES", "HALTING_SPEED",
-    "final_speed", "link_leader_speed", "planned_speed",
+    "ARRIVAL_EPS", "DEPART_OFFSET", "HALTING_SPEED", "final_speed", "planned_speed",
 ]  # fmt: skip
 
 #: Speed below which SUMO counts a vehicle as waiting / halting (m/s).
