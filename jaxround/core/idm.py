@@ -237,11 +237,15 @@ def idm_free_speed_ahead(
     v = jnp.asarray(v, dtype=jnp.result_type(float, v))
     two_sqrt_ab = 2.0 * jnp.sqrt(vtype.accel * vtype.decel)
     sec_gap = jnp.maximum(0.0, v_limit * vtype.tau + v_limit * v_limit / two_sqrt_ab)
-    stepping = {"vtype": vtype, "s0": 0.0, "dt": dt, "n_substeps": n_substeps}
-    v_acc = idm_v(v, v_limit, FREE_GAP, v0, **stepping)
-    obstacle = jnp.maximum(seen, sec_gap)
-    v_dec = idm_v(v, 0.0, obstacle, v0, **stepping)
-    v_safe = jnp.where(v <= v_limit, v_acc, v_dec)
+    # below the limit free road behind a "leader" at the limit's speed,
+    # above it the standing obstacle: one `idm_v` on the chosen inputs (it
+    # works element by element, so this is the choice of the two results)
+    below = v <= v_limit
+    v_safe = idm_v(
+        v, jnp.where(below, v_limit, 0.0),
+        jnp.where(below, FREE_GAP, jnp.maximum(seen, sec_gap)), v0,
+        vtype=vtype, s0=0.0, dt=dt, n_substeps=n_substeps,
+    )  # fmt: skip
     v_safe = jnp.where(seen < sec_gap, jnp.minimum(v_safe, v_limit), v_safe)
     # a negative limit (ballistic red-light case) is returned as it is
     return jnp.where(v_limit < 0.0, v_limit, v_safe)
