@@ -83,29 +83,40 @@ def planned_speed(
     car = params
     veh = Vehicles(route, pos, speed, speed_factor, active, waiting_s)
     step = Stepping(dt, n_substeps, action_step)
-    start = planning.start_speeds(net, car, veh, step=step, command=command)
-    tables = build_tables(net, route, pos, active, car.length)  # (R, M) and more
-    leader = planning.own_leader(car, veh, start, tables, step=step)
-    limits = planning.lane_limits(net, car, veh, start, step=step)
-    line = planning.yield_line(net, car, veh, start, tables, step=step)
-    # the link leaders at the next merge
-    v_follow = jnp.minimum(leader.v_follow, line.v_link)
-    ahead = right_of_way.look_ahead(
-        net, car, veh, start, leader, limits, line, tables, step=step
-    )
-    requests = right_of_way.registrations(
-        net, car, veh, start, leader, limits, line, ahead, prev_regs, t,
-        v_follow=v_follow, step=step,
-    )  # fmt: skip
+    # each phase in its own named scope: `jaxround bench --profile` reads
+    # them back from the compiled program (`jaxround.apps.bench_profile`)
+    with jax.named_scope("start_speeds"):
+        start = planning.start_speeds(net, car, veh, step=step, command=command)
+    with jax.named_scope("neighbour_tables"):
+        tables = build_tables(net, route, pos, active, car.length)  # (R, M) ...
+    with jax.named_scope("own_leader"):
+        leader = planning.own_leader(car, veh, start, tables, step=step)
+    with jax.named_scope("lane_limits"):
+        limits = planning.lane_limits(net, car, veh, start, step=step)
+    with jax.named_scope("yield_line"):
+        line = planning.yield_line(net, car, veh, start, tables, step=step)
+        # the link leaders at the next merge
+        v_follow = jnp.minimum(leader.v_follow, line.v_link)
+    with jax.named_scope("look_ahead"):
+        ahead = right_of_way.look_ahead(
+            net, car, veh, start, leader, limits, line, tables, step=step
+        )
+    with jax.named_scope("registrations"):
+        requests = right_of_way.registrations(
+            net, car, veh, start, leader, limits, line, ahead, prev_regs, t,
+            v_follow=v_follow, step=step,
+        )  # fmt: skip
     # link leaders at every merge of the look-ahead, not only the next one
     v_follow = jnp.minimum(v_follow, jnp.min(ahead.v_link_k, axis=1))
-    blocked_w = right_of_way.entry_test(
-        net, car, veh, start, line, ahead, requests, t, step=step
-    )
-    v_next = final_speed(
-        net, car, veh, start, leader, limits, line, requests,
-        v_follow=v_follow, blocked_w=blocked_w, step=step, command=command,
-    )  # fmt: skip
+    with jax.named_scope("entry_test"):
+        blocked_w = right_of_way.entry_test(
+            net, car, veh, start, line, ahead, requests, t, step=step
+        )
+    with jax.named_scope("final_speed"):
+        v_next = final_speed(
+            net, car, veh, start, leader, limits, line, requests,
+            v_follow=v_follow, blocked_w=blocked_w, step=step, command=command,
+        )  # fmt: skip
     return v_next, requests.regs, blocked_w > 0.5, leader.slot, leader.gap
 
 

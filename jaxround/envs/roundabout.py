@@ -207,44 +207,50 @@ class RoundaboutEnv:
         # 1. the AVs' commands, applied as SUMO applies a TraCI speed command
         #    while every vehicle plans (IDM, junctions); then all move
         agent = state.active & state.is_av
-        if self.cfg.agent.action == "assertiveness":
-            pv = retuned_params(pv, action[:, 0], agent)
-            command = jnp.full_like(state.speed, jnp.nan)
-        else:
-            command = command_from_action(state, action, pv, self.dt)
+        with jax.named_scope("actions"):
+            if self.cfg.agent.action == "assertiveness":
+                pv = retuned_params(pv, action[:, 0], agent)
+                command = jnp.full_like(state.speed, jnp.nan)
+            else:
+                command = command_from_action(state, action, pv, self.dt)
         v_next, regs, _, leader, gap = dynamics.planned_speed(
             net, pv, state.route, state.pos, state.speed, state.speed_factor,
             state.active, state.waiting_s, state.registrations, t, self.dt,
             self.n_substeps, self.action_step, command=command,
         )  # fmt: skip
-        pos_next = state.pos + v_next * self.dt
-        route_len = net.route_length[state.route]
-        arrived = state.active & (pos_next > route_len - dynamics.ARRIVAL_EPS)
-        # a vehicle whose bumper passed the back of the one it followed
-        lead = jnp.maximum(leader, 0)
-        gap_next = gap + (v_next[lead] - v_next) * self.dt
-        crashed = state.active & (leader >= 0) & ~arrived[lead] & (gap_next < -1e-3)
-        # SUMO counts the arrival step in full (measured against tripinfo)
-        co2_step, fuel_step = emissions.step_emissions_mg(state.speed, v_next, self.dt)
-        co2 = state.co2_mg + jnp.where(state.active, co2_step, 0.0)
-        fuel = state.fuel_mg + jnp.where(state.active, fuel_step, 0.0)
-        waiting = jnp.where(
-            v_next < dynamics.HALTING_SPEED, state.waiting_s + self.dt, 0.0
-        )
-        _, lane, _ = geometry.locate(net, state.route, state.pos)
-        v_desired = jnp.minimum(
-            net.lane_speed[lane] * state.speed_factor, p.vehicle.max_speed
-        )
-        if self.cfg.agent.reward == "system":
-            pending = ~state.inserted & (state.schedule.depart_s <= t + 1e-4)
-            n_in_system = jnp.sum(state.active) + jnp.sum(pending)
-            reward = system_reward(
-                n_in_system, co2_step, state.active, agent, p, self.dt,
-                share=self.cfg.agent.share,
-            )  # fmt: skip
-        else:
-            reward = av_reward(v_next, v_desired, co2_step / self.dt, p)
-            reward = jnp.where(agent, reward, 0.0)
+        with jax.named_scope("move"):
+            pos_next = state.pos + v_next * self.dt
+            route_len = net.route_length[state.route]
+            arrived = state.active & (pos_next > route_len - dynamics.ARRIVAL_EPS)
+            # a vehicle whose bumper passed the back of the one it followed
+            lead = jnp.maximum(leader, 0)
+            gap_next = gap + (v_next[lead] - v_next) * self.dt
+            crashed = state.active & (leader >= 0) & ~arrived[lead] & (gap_next < -1e-3)
+            waiting = jnp.where(
+                v_next < dynamics.HALTING_SPEED, state.waiting_s + self.dt, 0.0
+            )
+        with jax.named_scope("emissions"):
+            # SUMO counts the arrival step in full (measured against tripinfo)
+            co2_step, fuel_step = emissions.step_emissions_mg(
+                state.speed, v_next, self.dt
+            )
+            co2 = state.co2_mg + jnp.where(state.active, co2_step, 0.0)
+            fuel = state.fuel_mg + jnp.where(state.active, fuel_step, 0.0)
+        with jax.named_scope("reward"):
+            if self.cfg.agent.reward == "system":
+                pending = ~state.inserted & (state.schedule.depart_s <= t + 1e-4)
+                n_in_system = jnp.sum(state.active) + jnp.sum(pending)
+                reward = system_reward(
+                    n_in_system, co2_step, state.active, agent, p, self.dt,
+                    share=self.cfg.agent.share,
+                )  # fmt: skip
+            else:
+                _, lane, _ = geometry.locate(net, state.route, state.pos)
+                v_desired = jnp.minimum(
+                    net.lane_speed[lane] * state.speed_factor, p.vehicle.max_speed
+                )
+                reward = av_reward(v_next, v_desired, co2_step / self.dt, p)
+                reward = jnp.where(agent, reward, 0.0)
 
         # 2. arrivals leave their slots
         vid = jnp.where(arrived, state.vid, self.n_schedule)  # out of range: dropped
@@ -272,8 +278,10 @@ class RoundaboutEnv:
         )
 
         # 3. insertions, then the queue statistics of the new time
-        state = self._insert(state, p, t + self.dt)
-        state = self._count_queues(state, p, t + self.dt)
+        with jax.named_scope("insertion"):
+            state = self._insert(state, p, t + self.dt)
+        with jax.named_scope("queues"):
+            state = self._count_queues(state, p, t + self.dt)
         done = state.step >= self.episode_steps
         info = {
             "agent": agent,
@@ -284,7 +292,9 @@ class RoundaboutEnv:
             "overflow": state.stats.overflow,
             "n_active": jnp.sum(state.active),
         }
-        return self.observation(state, p), state, reward, done, info
+        with jax.named_scope("observation"):
+            obs = self.observation(state, p)
+        return obs, state, reward, done, info
 
     # ------------------------------------------------------------------ pieces
 
