@@ -105,7 +105,7 @@ def window_runner(
 
 
 @functools.lru_cache(maxsize=16)
-def _reset(env: RoundaboutEnv) -> Callable[[Schedule, EnvParams], EnvState]:
+def reset_runner(env: RoundaboutEnv) -> Callable[[Schedule, EnvParams], EnvState]:
     """``jit(env.reset_to_schedule)``, cached per environment like `window_runner`."""
     return jax.jit(lambda schedule, params: env.reset_to_schedule(schedule, params)[1])
 
@@ -146,7 +146,7 @@ def measure_jax(
             (see `batch_schedules`).
     """
     batch = int(schedules.depart_s.shape[0])
-    batched = jax.jit(jax.vmap(_reset(env), in_axes=(0, None)))
+    batched = jax.jit(jax.vmap(reset_runner(env), in_axes=(0, None)))
     states = jax.block_until_ready(batched(schedules, params))
     t0 = time.perf_counter()
     run = jax.jit(jax.vmap(window_runner(env, steps), in_axes=(0, None)))

@@ -127,7 +127,22 @@ def cmd_parity(args: argparse.Namespace) -> None:
 def cmd_bench(args: argparse.Namespace) -> None:
     from jaxround.apps.bench import format_benchmark, run_benchmark
 
+    if args.batch is not None and not args.profile:
+        raise UsageError("--batch: only with --profile (the benchmark runs its own)")
     cfg = load_config(args.config)
+    if args.profile:
+        from jaxround.apps.bench_profile import (
+            DEFAULT_BATCH,
+            format_profile,
+            profile_step,
+        )
+
+        result = profile_step(cfg, batch=args.batch or DEFAULT_BATCH)
+        if args.json:
+            print_json(result)
+        else:
+            print(format_profile(result))
+        return
     result = run_benchmark(cfg, progress=not args.no_progress)
     warn_slot_overflow(result, "bench")
     if args.json:
@@ -187,6 +202,14 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     config_option(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.add_argument(
+        "--profile", action="store_true",
+        help="instead: where the JAX step's time goes, phase by phase (no SUMO)",
+    )  # fmt: skip
+    p.add_argument(
+        "--batch", type=positive_int, default=None,
+        help="roundabouts stepped together in the profile (default 256)",
+    )  # fmt: skip
     p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("render", help="an episode of the JAX environment as GIF/MP4")
