@@ -136,9 +136,10 @@ def idm_v(
     Returns:
         (...) the speed the IDM allows at the end of the step, >= 0.
     """
-    v, v_leader, gap = jnp.broadcast_arrays(
-        *(jnp.asarray(x, dtype=jnp.result_type(float, x)) for x in (v, v_leader, gap))
+    v, v_leader, gap = (
+        jnp.asarray(x, dtype=jnp.result_type(float, x)) for x in (v, v_leader, gap)
     )
+    shape = jnp.broadcast_shapes(v.shape, v_leader.shape, gap.shape)
     accel, tau, delta = vtype.accel, vtype.tau, vtype.delta
     two_sqrt_ab = 2.0 * jnp.sqrt(accel * vtype.decel)
     v_des = jnp.maximum(NUMERICAL_EPS, v_des)
@@ -157,13 +158,18 @@ def idm_v(
         g = g - jnp.maximum(0.0, (speed - v_leader) * h)
         return speed, g
 
-    carry = (v, gap)
+    gap = jnp.broadcast_to(gap, shape)
     if isinstance(n_substeps, int):
+        # unrolled, the first sub-step keeps v's own shape: asked for every
+        # lane ahead (v (M, 1), gaps (M, K)), its free-road power is taken
+        # once per vehicle, not once per lane (the same numbers)
+        carry = (v, gap)
         for i in range(n_substeps):
             carry = body(i, carry)
     else:
-        carry = lax.fori_loop(0, n_substeps, body, carry)
-    return jnp.maximum(0.0, carry[0])
+        carry = lax.fori_loop(0, n_substeps, body, (jnp.broadcast_to(v, shape), gap))
+    speed = jnp.maximum(0.0, carry[0])
+    return jnp.broadcast_to(speed, jnp.broadcast_shapes(speed.shape, shape))
 
 
 def idm_follow_speed(
