@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import jax
 import jax.numpy as jnp
 import pytest
@@ -77,3 +80,15 @@ def test_bad_arguments_fail_before_work(capsys: pytest.CaptureFixture[str]) -> N
         profile_step(small_config(), sim_seconds=0.0)
     assert main(["bench", "--batch", "4"]) == 2
     assert "--batch: only with --profile" in capsys.readouterr().err
+
+
+def test_every_named_scope_of_the_step_is_a_phase() -> None:
+    # a scope the profile does not know would be counted as "other"
+    root = Path(__file__).resolve().parents[2] / "jaxround"
+    sources = [root / "core" / "dynamics.py", root / "envs" / "roundabout.py"]
+    scopes = {
+        name
+        for path in sources
+        for name in re.findall(r'named_scope\("(\w+)"\)', path.read_text())
+    }
+    assert scopes == {name for name, _ in PHASES}
