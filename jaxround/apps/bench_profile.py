@@ -16,7 +16,9 @@ XLA keeps in each operation's metadata; an operation's time goes to the
 phase of the operation its result comes from (a fusion can pull in work
 traced in an earlier phase: XLA recomputes cheap producers where they are
 used, so read a phase's figure as what XLA spends there). "other" is what
-no phase owns: the scan's own bookkeeping, copies and layout changes.
+no phase owns: the scan's own bookkeeping, copies and layout changes. As in
+the benchmark, nothing reads the observation the scan carries, so XLA drops
+it and it has no row (PPO does pay for it).
 
 The times are CPU time: XLA runs independent operations on several cores
 at once, so the phases add up to more than the wall time of the step,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from jaxround.analysis.report import percent_label
@@ -137,7 +138,14 @@ def cmd_bench(args: argparse.Namespace) -> None:
             profile_step,
         )
 
-        result = profile_step(cfg, batch=args.batch or DEFAULT_BATCH)
+        batch = args.batch or DEFAULT_BATCH
+        if not args.no_progress:
+            print(
+                f"bench --profile: compiling and warming up {batch} roundabouts "
+                "of the step, then one profiled window (about half a minute)",
+                file=sys.stderr,
+            )
+        result = profile_step(cfg, batch=batch)
         if args.json:
             print_json(result)
         else:
