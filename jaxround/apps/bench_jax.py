@@ -74,32 +74,34 @@ def batch_schedules(env: RoundaboutEnv, batch: int, seed: int = 0) -> Schedule:
 @functools.lru_cache(maxsize=16)
 def window_runner(
     env: RoundaboutEnv, steps: int
-) -> Callable[[EnvState, EnvParams], tuple[EnvState, jax.Array, jax.Array]]:
+) -> Callable[[EnvState, EnvParams], tuple[EnvState, jax.Array, jax.Array, jax.Array]]:
     """``jit(scan)`` of one roundabout over `steps` steps, batched by `measure_jax`.
 
-    (state, params) -> (state, vehicle-steps, overflow count since the reset).
+    (state, params) -> (state, vehicle-steps, overflow count since the reset,
+    sum of the observations).
 
-    The scan body is `run_episode`'s with idle actions (observation carried),
-    plus the count of occupied slots after each step. Cached per environment,
-    so that each batch size reuses the traced step instead of tracing it again.
+    The scan body is `run_episode`'s with idle actions, plus the count of
+    occupied slots after each step. The observations are summed into an
+    output: XLA drops what no output reads, and without it the timed program
+    would not compute the observation a learner gets every step. Cached per
+    environment, so that each batch size reuses the traced step instead of
+    tracing it again.
     """
     action = jnp.zeros((env.max_vehicles, 2), jnp.float32)
     key = jax.random.PRNGKey(0)  # step_env does not use it
 
     def one(
         state: EnvState, params: EnvParams
-    ) -> tuple[EnvState, jax.Array, jax.Array]:
-        obs = env.observation(state, params)
-
+    ) -> tuple[EnvState, jax.Array, jax.Array, jax.Array]:
         def body(carry, _):
-            obs, state, occupied = carry
+            state, occupied, obs_sum = carry
             obs, state, _, _, _ = env.step_env(key, state, action, params)
             occupied = occupied + jnp.sum(state.active, dtype=jnp.int32)
-            return (obs, state, occupied), None
+            return (state, occupied, obs_sum + jnp.sum(obs)), None
 
-        init = (obs, state, jnp.int32(0))
-        (_, state, occupied), _ = jax.lax.scan(body, init, None, length=steps)
-        return state, occupied, state.stats.overflow
+        init = (state, jnp.int32(0), jnp.float32(0.0))
+        (state, occupied, obs_sum), _ = jax.lax.scan(body, init, None, length=steps)
+        return state, occupied, state.stats.overflow, obs_sum
 
     return jax.jit(one)
 
@@ -165,7 +167,7 @@ def measure_jax(
         cpus.append(time.process_time() - c0)
         if sum(walls) >= MIN_TIMED_S or len(walls) >= MAX_REPEATS:
             break
-    _, occupied, overflow = jax.device_get(out)
+    _, occupied, overflow, _ = jax.device_get(out)
     vehicle_steps = int(np.sum(occupied, dtype=np.int64))
     wall, cpu = statistics.median(walls), max(statistics.median(cpus), 1e-9)
     roundabout_steps = batch * steps

@@ -16,9 +16,7 @@ XLA keeps in each operation's metadata; an operation's time goes to the
 phase of the operation its result comes from (a fusion can pull in work
 traced in an earlier phase: XLA recomputes cheap producers where they are
 used, so read a phase's figure as what XLA spends there). "other" is what
-no phase owns: the scan's own bookkeeping, copies and layout changes. As in
-the benchmark, nothing reads the observation the scan carries, so XLA drops
-it and it has no row (PPO does pay for it).
+no phase owns: the scan's own bookkeeping, copies and layout changes.
 
 The times are CPU time: XLA runs independent operations on several cores
 at once, so the phases add up to more than the wall time of the step,
@@ -159,7 +157,7 @@ def profile_step(
     walls = []
     for _ in range(WALL_REPEATS):
         t0 = time.perf_counter()
-        _, occupied, _ = jax.block_until_ready(compiled(states, params))
+        _, occupied, _, _ = jax.block_until_ready(compiled(states, params))
         walls.append(time.perf_counter() - t0)
     wall = statistics.median(walls)
     with tempfile.TemporaryDirectory(prefix="jaxround-profile-") as folder:
