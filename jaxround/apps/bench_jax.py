@@ -16,7 +16,7 @@ import functools
 import statistics
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -138,6 +138,34 @@ def flop_rate(flops: float | None, row: dict[str, Any]) -> dict[str, float | Non
     }
 
 
+class WarmedWindow(NamedTuple):
+    """`warmed_window`: run the compiled batched window (states, params) ->
+    `window_runner`'s outputs; states (B, ...) after the warm-up window;
+    compile_s and warmup_s the seconds each took."""
+
+    run: Any
+    states: EnvState
+    compile_s: float
+    warmup_s: float
+
+
+def warmed_window(
+    env: RoundaboutEnv, params: EnvParams, schedules: Schedule, steps: int
+) -> WarmedWindow:
+    """Reset B roundabouts to `schedules` (stacked on a leading batch axis, see
+    `batch_schedules`), compile the batched window of `steps` steps and run it
+    once: the warm-up over steps [0, steps)."""
+    batched = jax.jit(jax.vmap(reset_runner(env), in_axes=(0, None)))
+    states = jax.block_until_ready(batched(schedules, params))
+    t0 = time.perf_counter()
+    run = jax.jit(jax.vmap(window_runner(env, steps), in_axes=(0, None)))
+    run = run.lower(states, params).compile()
+    compile_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    states = jax.block_until_ready(run(states, params)[0])
+    return WarmedWindow(run, states, compile_s, time.perf_counter() - t0)
+
+
 def measure_jax(
     env: RoundaboutEnv, params: EnvParams, schedules: Schedule, steps: int
 ) -> dict[str, Any]:
@@ -148,16 +176,7 @@ def measure_jax(
             (see `batch_schedules`).
     """
     batch = int(schedules.depart_s.shape[0])
-    batched = jax.jit(jax.vmap(reset_runner(env), in_axes=(0, None)))
-    states = jax.block_until_ready(batched(schedules, params))
-    t0 = time.perf_counter()
-    run = jax.jit(jax.vmap(window_runner(env, steps), in_axes=(0, None)))
-    run = run.lower(states, params).compile()
-    compile_s = time.perf_counter() - t0
-
-    t0 = time.perf_counter()
-    states = jax.block_until_ready(run(states, params)[0])  # warm-up window
-    warmup_s = time.perf_counter() - t0
+    run, states, compile_s, warmup_s = warmed_window(env, params, schedules, steps)
 
     walls, cpus = [], []
     while True:

@@ -39,7 +39,7 @@ from typing import Any
 
 import jax
 
-from jaxround.apps.bench_jax import batch_schedules, reset_runner, window_runner
+from jaxround.apps.bench_jax import batch_schedules, warmed_window
 from jaxround.envs.roundabout import make
 from jaxround.scenario.config import ScenarioConfig
 
@@ -147,12 +147,9 @@ def profile_step(
     if not sim_seconds > 0 or steps < 1:
         raise ValueError(f"sim_seconds: {sim_seconds}, expected at least one step")
     env, params = make(cfg, max_vehicles=max_vehicles)
-    schedules = batch_schedules(env, batch, seed)
-    states = jax.jit(jax.vmap(reset_runner(env), in_axes=(0, None)))(schedules, params)
-    run = jax.jit(jax.vmap(window_runner(env, steps), in_axes=(0, None)))
-    compiled = run.lower(states, params).compile()
+    window = warmed_window(env, params, batch_schedules(env, batch, seed), steps)
+    compiled, states = window.run, window.states
     where = operation_phases(compiled.as_text())
-    states = jax.block_until_ready(compiled(states, params)[0])  # the warm-up
 
     walls = []
     for _ in range(WALL_REPEATS):
