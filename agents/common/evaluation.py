@@ -26,9 +26,11 @@ from agents.common.export import (
     policy_action,
 )
 from jaxround.analysis.metrics import class_metrics, mean_over_runs
+from jaxround.core.capacity import road_capacity
 from jaxround.core.state import EnvState
 from jaxround.envs.rollout import NO_COMMAND, Policy, run_until_left, vehicle_records
-from jaxround.envs.roundabout import make
+from jaxround.envs.roundabout import RoundaboutEnv, make
+from jaxround.envs.slots import redo_on_overflow
 from jaxround.scenario.config import DRAIN_S, ScenarioConfig, config_from_dict
 from jaxround.scenario.schedule import make_schedule
 
@@ -71,7 +73,7 @@ def evaluate_policy(
     cfg: ScenarioConfig,
     penetrations: Sequence[float],
     seeds: Sequence[int],
-    max_vehicles: int | None = None,
+    max_vehicles: int | str | None = None,
     keep_records: bool = False,
 ) -> dict[str, Any]:
     """Run the policy and the uncontrolled baseline on every schedule.
@@ -82,13 +84,16 @@ def evaluate_policy(
         penetrations: AV shares.
         seeds: schedule seeds.
         max_vehicles: vehicle slots M; None: the config's, else what the
-            road holds (`jaxround.core.capacity`).
+            traffic needs (`jaxround.envs.slots`); runs whose slots overflow
+            are redone with more (`redo_on_overflow`).
         keep_records: also return each run's `VehicleRecords` under
             ``"records": {driver: {penetration: [per seed]}}`` (not JSON).
 
     Returns:
         ``{"scenario", "seeds", "policy": path, "layout": {...},
-        "max_vehicles": M, "jax_slot_overflow": vehicle-steps over all runs,
+        "max_vehicles": M of the reported runs, "max_vehicles_tried": every
+        M run, "jax_slot_overflow": vehicle-steps over all runs (0 unless
+        the road itself overflowed),
         "cap_s": the longest a run went on, "jax_not_arrived": vehicles
         still in or waiting at the cap, over all runs,
         "results": {driver: {penetration: metrics}}}`` where metrics are
@@ -113,23 +118,34 @@ def evaluate_policy(
             f"({layout.observer!r} observer), the environment gives {obs.shape[-1]}"
         )
     runs = [(d, p, s) for d in DRIVERS for p in penetrations for s in seeds]
-    schedules = {
-        (p, s): env.schedule_from_numpy(make_schedule(cfg, seed=s, penetration=p))
+    numpy_schedules = {
+        (p, s): make_schedule(cfg, seed=s, penetration=p)
         for p in penetrations
         for s in seeds
     }
-    batch = jax.tree.map(
-        lambda *xs: np.stack(xs), *[schedules[(p, s)] for _, p, s in runs]
-    )
     use_policy = np.array([d == "policy" for d, _, _ in runs])
     keys = jax.random.split(jax.random.PRNGKey(0), len(runs))
     weights = {k: jnp.asarray(v) for k, v in arrays.items()}
 
-    def one(schedule: Any, key: jax.Array, flag: jax.Array) -> EnvState:
-        policy = switched_policy(weights, layout, flag)
-        return run_until_left(env, params, schedule, key, policy)
+    def run_with(slots: int) -> tuple[RoundaboutEnv, EnvState]:
+        """Every run with `slots` vehicle slots, side by side."""
+        env, params = make(cfg, max_vehicles=slots, episode_s=cap_s)
+        batch = jax.tree.map(
+            lambda *xs: np.stack(xs),
+            *[env.schedule_from_numpy(numpy_schedules[(p, s)]) for _, p, s in runs],
+        )
 
-    states = jax.jit(jax.vmap(one))(batch, keys, use_policy)
+        def one(schedule: Any, key: jax.Array, flag: jax.Array) -> EnvState:
+            policy = switched_policy(weights, layout, flag)
+            return run_until_left(env, params, schedule, key, policy)
+
+        return env, jax.jit(jax.vmap(one))(batch, keys, use_policy)
+
+    (env, states), tried = redo_on_overflow(
+        run_with, lambda run: int(np.sum(run[1].stats.overflow)),
+        max_vehicles=env.max_vehicles, road=road_capacity(env.network, cfg),
+        what="evaluate (JAX)",
+    )  # fmt: skip
     per_run: dict[tuple[str, float], list[dict[str, Any]]] = {}
     overflow = not_arrived = 0
     records: dict[str, dict[float, list[Any]]] = {d: {} for d in DRIVERS}
@@ -155,6 +171,7 @@ def evaluate_policy(
             "centralised": layout.centralised,
         },
         "max_vehicles": env.max_vehicles,
+        "max_vehicles_tried": tried,
         "jax_slot_overflow": overflow,
         "cap_s": cap_s,
         "jax_not_arrived": not_arrived,

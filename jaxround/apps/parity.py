@@ -26,8 +26,10 @@ from jaxround.apps.drivers import (
     parse_driver,
     sumo_driver,
 )
+from jaxround.core.capacity import road_capacity
 from jaxround.envs.rollout import run_until_left, vehicle_records
-from jaxround.envs.roundabout import make
+from jaxround.envs.roundabout import RoundaboutEnv, make
+from jaxround.envs.slots import redo_on_overflow
 from jaxround.scenario.config import ScenarioConfig
 from jaxround.scenario.schedule import make_schedule
 
@@ -38,33 +40,48 @@ def run_jax(
     cfg: ScenarioConfig,
     seeds: Sequence[int],
     penetration: float = 0.0,
-    max_vehicles: int | None = None,
+    max_vehicles: int | str | None = None,
     driver: DriverSpec | None = None,
     cap_s: float | None = None,
 ) -> list[dict[str, Any]]:
     """Run the schedules of `seeds` in JAX, all seeds in one vmapped batch,
     each until its vehicles have left or `cap_s` (default: the episode), with
-    `max_vehicles` slots (None: the config's, else what the road holds).
+    `max_vehicles` slots (None: the config's, else what the traffic needs),
+    redone with more slots while any run's slots overflow
+    (`jaxround.envs.slots.redo_on_overflow`).
 
     Returns:
         One ``{"records": VehicleRecords, "overflow": int, "end_s": float,
-        "max_vehicles": int}`` per seed.
+        "max_vehicles": int, "max_vehicles_tried": [int, ...]}`` per seed.
     """
     driver = parse_driver(None) if driver is None else driver
-    env, params = make(config_for(cfg, driver), max_vehicles=max_vehicles)
-    policy = jax_driver(env, params, driver)
-    max_steps = None if cap_s is None else int(math.ceil(cap_s / env.dt))
-    schedules = [
-        env.schedule_from_numpy(make_schedule(cfg, seed=s, penetration=penetration))
-        for s in seeds
+    driven = config_for(cfg, driver)
+    numpy_schedules = [
+        make_schedule(cfg, seed=s, penetration=penetration) for s in seeds
     ]
-    batch = jax.tree.map(lambda *xs: np.stack(xs), *schedules)
-
-    def one(schedule: Any, key: jax.Array) -> Any:
-        return run_until_left(env, params, schedule, key, policy, max_steps)
-
     keys = jax.random.split(jax.random.PRNGKey(0), len(seeds))
-    states = jax.jit(jax.vmap(one))(batch, keys)
+
+    def run_with(slots: int | str | None) -> tuple[RoundaboutEnv, Any]:
+        """Every seed with `slots` vehicle slots, side by side."""
+        env, params = make(driven, max_vehicles=slots)
+        policy = jax_driver(env, params, driver)
+        max_steps = None if cap_s is None else int(math.ceil(cap_s / env.dt))
+        batch = jax.tree.map(
+            lambda *xs: np.stack(xs),
+            *[env.schedule_from_numpy(s) for s in numpy_schedules],
+        )
+
+        def one(schedule: Any, key: jax.Array) -> Any:
+            return run_until_left(env, params, schedule, key, policy, max_steps)
+
+        return env, jax.jit(jax.vmap(one))(batch, keys)
+
+    first = make(driven, max_vehicles=max_vehicles)[0]
+    (env, states), tried = redo_on_overflow(
+        run_with, lambda run: int(np.sum(run[1].stats.overflow)),
+        max_vehicles=first.max_vehicles, road=road_capacity(first.network, driven),
+        what="parity (JAX)",
+    )  # fmt: skip
     out = []
     for i in range(len(seeds)):
         state = jax.tree.map(lambda x, i=i: x[i], states)
@@ -74,6 +91,7 @@ def run_jax(
                 "overflow": int(state.stats.overflow),
                 "end_s": float(state.step) * env.dt,
                 "max_vehicles": env.max_vehicles,
+                "max_vehicles_tried": tried,
             }
         )
     return out
@@ -106,7 +124,7 @@ def parity_report(
     show_progress: bool = True,
     penetration: float = 0.0,
     controller: str | None = None,
-    max_vehicles: int | None = None,
+    max_vehicles: int | str | None = None,
 ) -> dict[str, Any]:
     """The `jaxround parity --json` object for the schedules of `seeds`.
 
@@ -114,8 +132,9 @@ def parity_report(
         controller: the AVs' driver (`jaxround.apps.drivers`); None: uncontrolled
             (their vType).
         max_vehicles: JAX's vehicle slots M; None: the config's, else what
-            the road holds. The report gives M and the slot overflow
-            (vehicle-steps insertions waited for a slot, 0 with enough slots).
+            the traffic needs. Runs whose slots overflow are redone with more;
+            the report gives the M of the reported runs, every M tried and the
+            slot overflow (vehicle-steps insertions waited for a slot: 0).
 
     Raises:
         ValueError: a bad controller spec, before anything runs.
@@ -163,6 +182,7 @@ def parity_report(
         "jax_not_arrived": sum(left_inside(r["records"]) for r in jax_runs),
         "sumo_not_arrived": sum(left_inside(r.records) for r in sumo_runs),
         "max_vehicles": jax_runs[0]["max_vehicles"],
+        "max_vehicles_tried": jax_runs[0]["max_vehicles_tried"],
         "jax_slot_overflow": int(sum(r["overflow"] for r in jax_runs)),
         "sumo_collisions": int(sum(r.collisions for r in sumo_runs)),
         "sumo_teleports": int(sum(r.teleports for r in sumo_runs)),

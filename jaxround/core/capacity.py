@@ -10,10 +10,14 @@ backlog) wait in the schedule (``EnvState.inserted`` false), not in a slot.
 So M = `road_capacity` slots hold every vehicle the road can, and no
 insertion can overflow.
 
-A config may set fewer slots for speed (``simulation.max_vehicles``, a
-trainer's ``max_vehicles``, ``--max-vehicles``); then an insertion that finds
-every slot taken waits, counted in ``EnvState.stats.overflow`` (vehicle-steps), and
-the run departs from SUMO's. `overflow_warning` says so.
+The default M is smaller: what the scenario's traffic needs
+(`jaxround.envs.slots`), and a config or a command may set any M
+(``simulation.max_vehicles``, a trainer's ``max_vehicles``,
+``--max-vehicles``). An insertion that finds every slot taken waits, counted
+in ``EnvState.stats.overflow`` (vehicle-steps), and the run departs from
+SUMO's: the commands that report results run it again with more slots
+(`jaxround.envs.slots.redo_on_overflow`); `overflow_warning` says so where
+nothing can be redone (training).
 """
 
 from __future__ import annotations
@@ -57,26 +61,6 @@ def road_capacity(network: CompiledNetwork, cfg: ScenarioConfig) -> int:
     are counted each on its own, so this is an upper bound, not a jam's count.
     """
     return int(lane_capacities(network.lane_length, length_with_gap(cfg)).sum())
-
-
-def resolve_max_vehicles(
-    max_vehicles: int | None, cfg: ScenarioConfig, network: CompiledNetwork
-) -> int:
-    """The slots M an environment gets: `max_vehicles` if given, else the
-    config's ``simulation.max_vehicles``, else `road_capacity`.
-
-    Raises:
-        ValueError: a given `max_vehicles` below 1 or not an integer.
-    """
-    if max_vehicles is None:
-        max_vehicles = cfg.simulation.max_vehicles
-    if max_vehicles is None:
-        return road_capacity(network, cfg)
-    if isinstance(max_vehicles, bool) or int(max_vehicles) != max_vehicles:
-        raise ValueError(f"max_vehicles: {max_vehicles!r}, expected an integer")
-    if max_vehicles < 1:
-        raise ValueError(f"max_vehicles: {max_vehicles}, expected >= 1")
-    return int(max_vehicles)
 
 
 def overflow_warning(

@@ -21,7 +21,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxround.core import dynamics, emissions, geometry, idm
-from jaxround.core.capacity import resolve_max_vehicles
 from jaxround.core.network import CompiledNetwork
 from jaxround.core.params import EnvParams
 from jaxround.core.state import EnvState, EpisodeStats, Registrations, Schedule
@@ -29,6 +28,7 @@ from jaxround.envs import departures, observe, queues, schedules
 from jaxround.envs.actions import command_from_action
 from jaxround.envs.assertiveness import retuned_params
 from jaxround.envs.reward import av_reward, system_reward
+from jaxround.envs.slots import resolve_slots
 from jaxround.envs.wrappers import auto_reset
 from jaxround.scenario.config import (
     SHARED_DRIVER_FIELDS,
@@ -47,8 +47,9 @@ DEFAULT_DRAIN_S = 300.0
 class RoundaboutEnv:
     """A single-lane roundabout with M vehicle slots and N scheduled vehicles.
 
-    M: given, else the config's ``simulation.max_vehicles``, else what the road
-    holds (`jaxround.core.capacity`). Static settings (shapes, dt, the network) live
+    M: given, else the config's ``simulation.max_vehicles``, else what the
+    scenario's traffic needs (`jaxround.envs.slots`); ``"road"``: what the road
+    holds. Static settings (shapes, dt, the network) live
     here; traced numbers in `EnvParams`; everything that changes in `EnvState`.
     """
 
@@ -56,7 +57,7 @@ class RoundaboutEnv:
         self,
         cfg: ScenarioConfig,
         network: CompiledNetwork,
-        max_vehicles: int | None = None,
+        max_vehicles: int | str | None = None,
         episode_s: float | None = None,
     ) -> None:
         check_driver_classes(cfg)
@@ -68,7 +69,7 @@ class RoundaboutEnv:
         self.cfg = cfg
         self.network = network
         self.net = geometry.NetArrays.from_network(network)
-        self.max_vehicles = resolve_max_vehicles(max_vehicles, cfg, network)
+        self.max_vehicles = resolve_slots(max_vehicles, cfg, network)
         self.n_schedule = cfg.demand.n_vehicles
         self.dt = cfg.simulation.dt_s
         self.n_substeps = idm.idm_substeps(self.dt)
@@ -331,7 +332,7 @@ def check_driver_classes(cfg: ScenarioConfig) -> None:
 
 def make(
     scenario: str | Path | ScenarioConfig = "milan",
-    max_vehicles: int | None = None,
+    max_vehicles: int | str | None = None,
     episode_s: float | None = None,
     workdir: str | Path | None = None,
 ) -> tuple[RoundaboutEnv, EnvParams]:
@@ -339,7 +340,9 @@ def make(
 
     Args:
         scenario: a built-in name, a YAML path, or a `ScenarioConfig`.
-        max_vehicles: vehicle slots M; None: the config's, else what the road holds.
+        max_vehicles: vehicle slots M; None: the config's, else what the
+            scenario's traffic needs (`jaxround.envs.slots`); "road": what the
+            road holds.
         episode_s: episode length; default demand horizon + 300 s.
         workdir: where to write the SUMO network; a cache folder if None.
 

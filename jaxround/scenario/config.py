@@ -186,7 +186,8 @@ class SimulationConfig:
     dt_s: float  # simulation step length, s
     penetration: float  # share of AVs, 0..1
     seed: int  # seed of the departure schedule
-    # JAX vehicle slots M; null: what the road holds (`jaxround.core.capacity`)
+    # JAX vehicle slots M; null: what the scenario's traffic needs
+    # (`jaxround.envs.slots`; max_vehicles="road" in `make`: what the road holds)
     max_vehicles: int | None = None
 
     def validate(self, where: str) -> None:
@@ -197,7 +198,7 @@ class SimulationConfig:
         if self.max_vehicles is not None and self.max_vehicles < 1:
             raise ConfigError(
                 f"{where}.max_vehicles: {self.max_vehicles}, expected >= 1, or "
-                "null for what the road holds"
+                "null for what the traffic needs"
             )
 
 

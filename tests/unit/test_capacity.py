@@ -1,4 +1,6 @@
-"""The road's capacity as the default vehicle slots (`jaxround.core.capacity`)."""
+"""What the road holds (`jaxround.core.capacity`), the default vehicle slots
+sized by the traffic, and runs redone when their slots overflow
+(`jaxround.envs.slots`)."""
 
 from __future__ import annotations
 
@@ -14,9 +16,9 @@ from jaxround.core.capacity import (
     lane_capacities,
     length_with_gap,
     overflow_warning,
-    resolve_max_vehicles,
     road_capacity,
 )
+from jaxround.envs import slots as slot_sizing
 from jaxround.envs.rollout import uncontrolled_policy
 from jaxround.envs.roundabout import make
 from jaxround.scenario.config import ConfigError, config_from_dict, load_config
@@ -64,15 +66,75 @@ def test_smallest_vtype_spacing(milan_net: Any) -> None:
     assert road_capacity(net, short) == int(np.ceil(net.lane_length / 6.0).sum())
 
 
-def test_slots_given_then_config_then_road(milan_net: Any) -> None:
+def test_slots_given_then_config_then_traffic(milan_net: Any) -> None:
     cfg, net = milan_net
-    assert resolve_max_vehicles(None, cfg, net) == 76
+    sizing = slot_sizing.traffic_slots(cfg, net)
+    assert slot_sizing.resolve_slots(None, cfg, net) == sizing.max_vehicles
+    # Milan at its demand: far fewer vehicles than the road holds, a margin
+    # above the most any measured step held
+    assert sizing.road == 76 and 8 <= sizing.peak < sizing.max_vehicles <= 40
+    assert sizing.max_vehicles == slot_sizing.slots_for_peak(sizing.peak, 76)
+    assert slot_sizing.resolve_slots("road", cfg, net) == 76
     capped = cfg.with_overrides(max_vehicles=40)
-    assert resolve_max_vehicles(None, capped, net) == 40
-    assert resolve_max_vehicles(12, capped, net) == 12
-    for bad in (0, -3, 2.5, True):
+    assert slot_sizing.resolve_slots(None, capped, net) == 40
+    assert slot_sizing.resolve_slots(12, capped, net) == 12
+    for bad in (0, -3, 2.5, True, "many"):
         with pytest.raises(ValueError, match="max_vehicles"):
-            resolve_max_vehicles(bad, cfg, net)
+            slot_sizing.resolve_slots(bad, cfg, net)
+
+
+def test_slots_for_peak() -> None:
+    assert slot_sizing.slots_for_peak(20, 76) == 32  # 25 rounded up to 8s
+    assert slot_sizing.slots_for_peak(24, 76) == 32
+    assert slot_sizing.slots_for_peak(26, 76) == 40
+    assert slot_sizing.slots_for_peak(1, 76) == 8  # at least 8
+    assert slot_sizing.slots_for_peak(70, 76) == 76  # at most the road's
+
+
+def test_sizing_cached_per_scenario(
+    milan_net: Any, tmp_path: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    _, net = milan_net
+    d = builtin_dict()  # Milan's roads, a short demand: quick to measure
+    d["demand"]["n_vehicles"], d["demand"]["duration_s"] = 30, 60.0
+    cfg = config_from_dict(d)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    path = slot_sizing._cache_file(cfg)
+    assert not path.exists()
+    path.parent.mkdir(parents=True)
+    path.write_text("{not json")  # a damaged cache is measured again
+    calls = []
+    real = slot_sizing.peak_occupancy
+
+    def counted(*args: Any) -> tuple[int, int]:
+        calls.append(1)
+        return real(*args)
+
+    monkeypatch.setattr(slot_sizing, "peak_occupancy", counted)
+    first = slot_sizing.traffic_slots(cfg, net)
+    second = slot_sizing.traffic_slots(cfg, net)
+    assert first == second and len(calls) == 1 and path.exists()
+
+
+def test_redo_on_overflow_until_none() -> None:
+    notes: list[str] = []
+    seen: list[int] = []
+
+    def run(m: int) -> int:  # "overflow" while fewer than 30 slots
+        seen.append(m)
+        return max(0, 30 - m)
+
+    result, tried = slot_sizing.redo_on_overflow(
+        run, lambda o: o, max_vehicles=8, road=76, what="test", note=notes.append
+    )
+    assert result == 0 and tried == seen == [8, 16, 32]
+    assert len(notes) == 2 and "max_vehicles = 16" in notes[1]
+    assert "redone with 32 slots" in notes[1]
+    # the road's capacity is the last resort
+    _, tried = slot_sizing.redo_on_overflow(
+        run, lambda o: o, max_vehicles=20, road=24, what="test", note=notes.append
+    )
+    assert tried == [20, 24]
 
 
 @pytest.mark.parametrize("value", [0, -1, 2.5, "many", True])
@@ -137,11 +199,25 @@ def peak_and_overflow(cfg: Any, max_vehicles: int | None, steps: int) -> tuple:
     return env.max_vehicles, int(peak), int(overflow)
 
 
-def test_past_capacity_no_overflow_at_default_slots() -> None:
+def test_past_capacity_no_overflow_at_the_roads_slots() -> None:
     cfg = past_capacity()
     steps = 360  # 180 s: the approaches fill
-    m, peak, overflow = peak_and_overflow(cfg, None, steps)
+    m, peak, overflow = peak_and_overflow(cfg, "road", steps)
     assert overflow == 0 and peak <= m
-    assert peak > 32  # more than the old default of 32 slots would hold ...
+    assert peak > 32  # more than 32 slots would hold ...
     m32, peak32, overflow32 = peak_and_overflow(cfg, 32, steps)
     assert m32 == 32 and peak32 == 32 and overflow32 > 0  # ... which overflow
+
+
+def test_parity_runs_redone_with_more_slots(capsys: pytest.CaptureFixture) -> None:
+    """A run that needs more slots than it was given gets them by itself:
+    the overflowing run is redone, said on stderr, and never reported."""
+    from jaxround.apps.parity import run_jax
+
+    d = builtin_dict()  # Milan at twice its demand, for two minutes
+    d["demand"]["n_vehicles"], d["demand"]["duration_s"] = 100, 120.0
+    runs = run_jax(config_from_dict(d), [0], max_vehicles=8, cap_s=120.0)
+    tried = runs[0]["max_vehicles_tried"]
+    assert tried[:2] == [8, 16] and runs[0]["max_vehicles"] == tried[-1]
+    assert runs[0]["overflow"] == 0 and runs[0]["records"].arrived.sum() > 50
+    assert "max_vehicles = 8; redone with 16 slots" in capsys.readouterr().err

@@ -125,12 +125,18 @@ def config_option(p: argparse.ArgumentParser) -> None:
     )
 
 
+def slot_count(text: str) -> int | str:
+    """A positive integer, or "road" (what the road holds)."""
+    return text if text == "road" else positive_int(text)
+
+
 def slots_option(p: argparse.ArgumentParser) -> None:
     """--max-vehicles: the JAX environment's vehicle slots M."""
     p.add_argument(
-        "--max-vehicles", type=positive_int, default=None,
-        help="JAX vehicle slots M (default: the scenario's "
-        "simulation.max_vehicles, else what the road holds)",
+        "--max-vehicles", type=slot_count, default=None,
+        help="JAX vehicle slots M, or 'road' for what the road holds (default: "
+        "the scenario's simulation.max_vehicles, else what its traffic needs; "
+        "a run whose slots overflow is redone with more)",
     )  # fmt: skip
 
 
