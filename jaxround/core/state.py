@@ -79,6 +79,19 @@ class Schedule:
         )
 
 
+def leg_order(origin: jax.Array, n_legs: int) -> jax.Array:
+    """Each leg's vehicles as schedule indices in schedule (departure) order,
+    int (G, N) padded with N, from the schedule's origins, int (N,)."""
+    n = origin.shape[-1]
+    mine = origin[None, :] == jnp.arange(n_legs)[:, None]  # (G, N)
+    rank = jnp.where(mine, jnp.cumsum(mine, axis=1) - 1, n)  # place within its leg
+    legs = jnp.broadcast_to(jnp.arange(n_legs)[:, None], mine.shape)
+    table = jnp.full((n_legs, n), n, jnp.int32)
+    return table.at[legs, rank].set(
+        jnp.broadcast_to(jnp.arange(n, dtype=jnp.int32), mine.shape), mode="drop"
+    )
+
+
 class Registrations(NamedTuple):
     """Approaches registered on the ring's through link of every leg. (M, G).
 
@@ -163,6 +176,11 @@ class EnvState:
         fuel_mg: float (M,) fuel used so far.
         schedule: the episode's `Schedule` (N,).
         inserted: bool (N,) the vehicle has entered the network.
+        leg_vehicles: int (G, N) each leg's vehicles, as schedule indices in
+            departure order, padded with N (`leg_order`): insertion and the
+            queues read each leg's next vehicles here, not all N.
+        leg_inserted: int (G,) how many of each leg's vehicles have entered
+            (so ``leg_vehicles[g, leg_inserted[g]]`` is the next to enter).
         insert_s: float (N,) insertion time (nan before).
         arrival_s: float (N,) arrival time (nan before).
         registrations: the approaches each slot registered on the ring's
@@ -186,6 +204,8 @@ class EnvState:
     fuel_mg: jax.Array
     schedule: Schedule
     inserted: jax.Array
+    leg_vehicles: jax.Array
+    leg_inserted: jax.Array
     insert_s: jax.Array
     arrival_s: jax.Array
     registrations: Registrations
@@ -209,6 +229,8 @@ class EnvState:
             "route": (self.route, (m,), "i"),
             "is_av": (self.is_av, (m,), "b"),
             "inserted": (self.inserted, (n,), "b"),
+            "leg_vehicles": (self.leg_vehicles, (g, n), "i"),
+            "leg_inserted": (self.leg_inserted, (g,), "i"),
             "schedule.depart_s": (self.schedule.depart_s, (n,), "f"),
             "registrations.ok": (self.registrations.ok, (m, g), "b"),
         }

@@ -15,6 +15,7 @@ from jaxround.core.geometry import NetArrays
 from jaxround.core.params import EnvParams
 from jaxround.core.reductions import first_min
 from jaxround.core.state import EnvState
+from jaxround.envs import queues
 
 
 def insert_departures(
@@ -37,6 +38,9 @@ def insert_departures(
     frozen with `stop_gradient` (the inserted speed's sensitivity is left
     out, which also keeps the backward pass small to compile).
 
+    Each leg's candidate is its next vehicle in `EnvState.leg_vehicles`, so
+    a step reads G vehicles of the schedule, not all N.
+
     Shapes: G legs, N scheduled vehicles, M slots. The k-th inserting leg takes
     the k-th free slot; one with no free slot is counted in `state.stats.overflow`.
     """
@@ -44,11 +48,13 @@ def insert_departures(
     p = jax.lax.stop_gradient(params)
     pos, speed = jax.lax.stop_gradient((state.pos, state.speed))
     g, n, m = net.entry_lane.shape[0], s.depart_s.shape[0], state.active.shape[0]
-    waiting = ~state.inserted & (s.depart_s <= t + 1e-4)  # (N,)
-    idx = jnp.arange(n)
-    mine = waiting[None, :] & (s.origin[None, :] == jnp.arange(g)[:, None])  # (G, N)
-    cand = jnp.min(jnp.where(mine, idx[None, :], n), axis=1)  # (G,)
-    has = cand < n
+    # each leg's next vehicle (N: none left), a candidate once it is due
+    # (schedule indices below `queues.due`): SUMO's per-lane insertion queue
+    cand = jnp.take_along_axis(
+        state.leg_vehicles, state.leg_inserted[:, None], axis=1, mode="fill",
+        fill_value=n,
+    )[:, 0]  # (G,)  # fmt: skip
+    has = cand < queues.due(state, t)
     c = jnp.minimum(cand, n - 1)
     route = s.route[c]  # (G,)
     front = jnp.full(g, p.vehicle.length + dynamics.DEPART_OFFSET)
@@ -105,6 +111,7 @@ def insert_departures(
         co2_mg=put(state.co2_mg, jnp.zeros(g)),
         fuel_mg=put(state.fuel_mg, jnp.zeros(g)),
         inserted=state.inserted.at[vids].set(True, mode="drop"),
+        leg_inserted=state.leg_inserted + ok.astype(jnp.int32),
         insert_s=state.insert_s.at[vids].set(t, mode="drop"),
         stats=state.stats.replace(overflow=state.stats.overflow + jnp.sum(overflow)),
     )

@@ -13,6 +13,23 @@ from jaxround.core.relax import soft_step
 from jaxround.core.state import EnvState
 
 
+def due(state: EnvState, t: jax.Array) -> jax.Array:
+    """How many scheduled vehicles are due to have departed by time `t`,
+    int (): the schedule is in departure order, so a binary search."""
+    return jnp.searchsorted(state.schedule.depart_s, t + 1e-4, side="right")
+
+
+def waiting_per_leg(state: EnvState, t: jax.Array) -> jax.Array:
+    """Vehicles of each leg due by `t` that have not entered yet, int (G,):
+    each leg's due vehicles are those of its schedule indices below `due`
+    (a binary search per leg), less those inserted (`EnvState.leg_inserted`)."""
+    n_due = due(state, t)
+    due_per_leg = jax.vmap(lambda row: jnp.searchsorted(row, n_due, side="left"))(
+        state.leg_vehicles
+    )
+    return due_per_leg - state.leg_inserted
+
+
 def queued_per_leg(
     net: NetArrays, state: EnvState, t: jax.Array, temperature: jax.Array
 ) -> jax.Array:
@@ -20,15 +37,11 @@ def queued_per_leg(
     (speed below `dynamics.HALTING_SPEED`, as SUMO's getLastStepHaltingNumber)
     plus those due that wait to be inserted. Above temperature 0 (m/s) the
     halting test is smooth (`jaxround.core.relax`); insertion stays exact."""
-    s = state.schedule
-    n_legs = net.entry_lane.shape[0]
     _, lane, _ = geometry.locate(net, state.route, state.pos)
     on_entry = lane[None, :] == net.entry_lane[:, None]  # (G, M)
     slow = soft_step(dynamics.HALTING_SPEED - state.speed, temperature)
     halting = state.active * slow
-    pending = ~state.inserted & (s.depart_s <= t + 1e-4)
-    waiting = pending[None, :] & (s.origin[None, :] == jnp.arange(n_legs)[:, None])
-    return jnp.sum(on_entry * halting[None, :], axis=1) + jnp.sum(waiting, axis=1)
+    return jnp.sum(on_entry * halting[None, :], axis=1) + waiting_per_leg(state, t)
 
 
 def count_queues(

@@ -23,7 +23,13 @@ import numpy as np
 from jaxround.core import dynamics, emissions, geometry, idm
 from jaxround.core.network import CompiledNetwork
 from jaxround.core.params import EnvParams
-from jaxround.core.state import EnvState, EpisodeStats, Registrations, Schedule
+from jaxround.core.state import (
+    EnvState,
+    EpisodeStats,
+    Registrations,
+    Schedule,
+    leg_order,
+)
 from jaxround.envs import departures, observe, queues, schedules
 from jaxround.envs.actions import command_from_action
 from jaxround.envs.assertiveness import retuned_params
@@ -147,6 +153,8 @@ class RoundaboutEnv:
             fuel_mg=zf,
             schedule=schedule,
             inserted=jnp.zeros(n, bool),
+            leg_vehicles=leg_order(schedule.origin, g),
+            leg_inserted=jnp.zeros(g, jnp.int32),
             insert_s=jnp.full(n, jnp.nan, jnp.float32),
             arrival_s=jnp.full(n, jnp.nan, jnp.float32),
             registrations=Registrations.empty(m, g),
@@ -239,8 +247,8 @@ class RoundaboutEnv:
             fuel = state.fuel_mg + jnp.where(state.active, fuel_step, 0.0)
         with jax.named_scope("reward"):
             if self.cfg.agent.reward == "system":
-                pending = ~state.inserted & (state.schedule.depart_s <= t + 1e-4)
-                n_in_system = jnp.sum(state.active) + jnp.sum(pending)
+                pending = queues.due(state, t) - jnp.sum(state.leg_inserted)
+                n_in_system = jnp.sum(state.active) + pending
                 reward = system_reward(
                     n_in_system, co2_step, state.active, agent, p, self.dt,
                     share=self.cfg.agent.share,

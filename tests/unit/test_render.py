@@ -20,7 +20,13 @@ import pytest
 from jaxround.analysis import episode_movie, render
 from jaxround.core import geometry
 from jaxround.core.params import EnvParams
-from jaxround.core.state import EnvState, EpisodeStats, Registrations, Schedule
+from jaxround.core.state import (
+    EnvState,
+    EpisodeStats,
+    Registrations,
+    Schedule,
+    leg_order,
+)
 from jaxround.envs.roundabout import RoundaboutEnv, make
 
 matplotlib.use("Agg")
@@ -88,6 +94,10 @@ def hand_state(env: RoundaboutEnv, shift: float = 0.0, step: int = STEP) -> EnvS
         fuel_mg=zeros_m,
         schedule=schedule,
         inserted=jnp.asarray(INSERTED),
+        leg_vehicles=leg_order(schedule.origin, net.n_legs),
+        leg_inserted=jnp.asarray(
+            np.bincount(origin[INSERTED], minlength=net.n_legs), jnp.int32
+        ),
         insert_s=zeros_n,
         arrival_s=jnp.full(n, jnp.nan, f32),
         registrations=Registrations.empty(m, net.n_legs),
