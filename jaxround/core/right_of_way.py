@@ -23,6 +23,7 @@ from jaxround.core.junction import (
     entry_candidates,
     register,
 )
+from jaxround.core.merge_prefixes import at_lane, merge_prefixes, prefix_min
 from jaxround.core.neighbours import (
     NeighbourTables,
     on_entry_lane,
@@ -80,12 +81,11 @@ def look_ahead(
     rearmost = rearmost_on_lanes(net, tables, route, pos, veh.active)  # (M, K)
     starts = net.route_lane_start[route]  # (M, K)
     conflict_offset = net.conflict_offset[route]  # (M, G)
-    before = limits.later[:, :, None] & (
-        starts[:, :, None] < conflict_offset[:, None, :]
-    )
-    lim_before = jnp.min(
-        jnp.where(before, limits.per_lane[:, :, None], jnp.inf), axis=1
-    )
+    # the lanes before each merge: prefixes and single lanes of the route
+    # (`jaxround.core.merge_prefixes`), read per vehicle, (M, G) each
+    lanes_before = jax.tree.map(lambda table: jnp.asarray(table)[route],
+                                merge_prefixes(net))  # fmt: skip
+    lim_before = prefix_min(limits.per_lane, lanes_before.starts_before)
     merge_start = pos + line.to_link
     link_before = merge_start[:, None] < conflict_offset
     v_pre = jnp.minimum(start.v_start[:, None], lim_before)
@@ -97,7 +97,6 @@ def look_ahead(
     v_pre = jnp.where(lead_early, jnp.minimum(v_pre, v_own), v_pre)
     ring_cap = jnp.where(lead_ring, v_own, jnp.inf)
     lanes_k = net.route_lanes[route]
-    ends_k = starts + net.lane_length[jnp.maximum(lanes_k, 0)]  # (M, K), inf padded
     columns = car.columns()
     ahead_has, ahead_slot, ahead_gap = rearmost
     v_follow_k = idm.idm_follow_speed(
@@ -107,16 +106,8 @@ def look_ahead(
     k = start.lane_index
     mine = (jnp.arange(starts.shape[1])[None, :] >= k[:, None]) & (lanes_k >= 0)
     v_follow_k = jnp.where(ahead_has & mine, v_follow_k, jnp.inf)
-    ends_g = ends_k[:, :, None]
-    conflict_g = conflict_offset[:, None, :]
-    early = ends_g < conflict_g - net.prev_lane_length[route][:, None, :] + 1e-3
-    prev_l = jnp.abs(ends_g - conflict_g) < 1e-3
-    v_pre = jnp.minimum(
-        v_pre, jnp.min(jnp.where(early, v_follow_k[:, :, None], jnp.inf), 1)
-    )
-    ring_cap = jnp.minimum(
-        ring_cap, jnp.min(jnp.where(prev_l, v_follow_k[:, :, None], jnp.inf), 1)
-    )
+    v_pre = jnp.minimum(v_pre, prefix_min(v_follow_k, lanes_before.ends_early))
+    ring_cap = jnp.minimum(ring_cap, at_lane(v_follow_k, lanes_before.ends_at))
 
     def link_leaders_at(merge_k: jax.Array) -> jax.Array:
         """The link leaders' speed at the merge of route lane `merge_k`, (M,)."""
@@ -134,12 +125,8 @@ def look_ahead(
         v_link_k = v_link_k.at[:, merges].set(
             jax.vmap(link_leaders_at, out_axes=1)(merges)
         )
-    m_before = starts[:, :, None] < conflict_g - 1e-3
-    v_pre = jnp.minimum(
-        v_pre, jnp.min(jnp.where(m_before, v_link_k[:, :, None], jnp.inf), 1)
-    )
-    via_k = jnp.abs(starts[:, :, None] - conflict_g) < 1e-3
-    via_cap = jnp.min(jnp.where(via_k, v_link_k[:, :, None], jnp.inf), 1)
+    v_pre = jnp.minimum(v_pre, prefix_min(v_link_k, lanes_before.starts_clearly_before))
+    via_cap = at_lane(v_link_k, lanes_before.starts_at)
     return LookAhead(rearmost, v_link_k, v_pre, ring_cap, via_cap)
 
 
