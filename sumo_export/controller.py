@@ -59,7 +59,7 @@ class PolicyController:
         schedule: the schedule SUMO runs (routes and classes of its vehicles).
         act: the policy, ``act(obs (n, D), mask (n,)) -> (accel (n,), change (n,))``.
         observer: the observer the policy reads (`jaxround.envs.observe`).
-        max_slots: vehicle slots M (None: the config's, else the road's);
+        max_slots: vehicle slots M (default: the road's);
             vehicles beyond them drive uncontrolled (their IDM) and are
             counted in ``report()["overflow_vehicle_steps"]``.
         strict: raise OverflowError instead of counting when the slots overflow.
@@ -79,7 +79,7 @@ class PolicyController:
         schedule: Schedule,
         act: PolicyFn,
         observer: str,
-        max_slots: int | None = DEFAULT_SLOTS,
+        max_slots: int | str | None = DEFAULT_SLOTS,
         strict: bool = False,
         action: str = "accel",
     ) -> None:
@@ -106,7 +106,7 @@ class PolicyController:
         policy_path: str | Path,
         cfg: ScenarioConfig,
         schedule: Schedule,
-        max_slots: int | None = DEFAULT_SLOTS,
+        max_slots: int | str | None = DEFAULT_SLOTS,
         strict: bool = False,
     ) -> PolicyController:
         """A controller for an exported policy (`agents.common.export`); raises as
@@ -313,11 +313,11 @@ class PolicyControllerFactory:
 
     Attributes:
         policy_path: the exported policy (``.npz``, ``.json``, stem or folder).
-        max_slots: vehicle slots M; None: the config's, else what the road holds.
+        max_slots: vehicle slots M (default: what the road holds).
     """
 
     policy_path: str
-    max_slots: int | None = DEFAULT_SLOTS
+    max_slots: int | str | None = DEFAULT_SLOTS
 
     def __call__(self, cfg: ScenarioConfig, schedule: Schedule) -> PolicyController:
         synchronous_cpu_dispatch()

@@ -141,7 +141,9 @@ def sumo_sweep(
 
 
 def policy_controller(
-    cfg: ScenarioConfig, policy_path: str | Path, max_slots: int | None = DEFAULT_SLOTS
+    cfg: ScenarioConfig,
+    policy_path: str | Path,
+    max_slots: int | str | None = DEFAULT_SLOTS,
 ) -> PolicyControllerFactory:
     """The controller factory of an exported policy, checked before any run.
 
@@ -163,7 +165,7 @@ def sumo_policy_sweep(
     seeds: Sequence[int],
     workers: int | None = None,
     show_progress: bool = True,
-    max_slots: int | None = DEFAULT_SLOTS,
+    max_slots: int | str | None = DEFAULT_SLOTS,
 ) -> dict[float, dict[str, Any]]:
     """`sumo_sweep` with the AVs driven by an exported policy.
 
@@ -190,7 +192,7 @@ def controller_overhead(
     policy_path: str | Path,
     penetration: float = 1.0,
     seed: int = 0,
-    max_slots: int | None = DEFAULT_SLOTS,
+    max_slots: int | str | None = DEFAULT_SLOTS,
 ) -> dict[str, Any]:
     """What the controller costs: one schedule run without it, then with it.
 

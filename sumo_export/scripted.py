@@ -46,11 +46,11 @@ class ScriptedControllerFactory:
 
     Attributes:
         spec: the scripted controller, e.g. ``"accel:-1"`` or ``"eco:0.3"``.
-        max_slots: vehicle slots M; None: the config's, else what the road holds.
+        max_slots: vehicle slots M (default: what the road holds).
     """
 
     spec: str
-    max_slots: int | None = DEFAULT_SLOTS
+    max_slots: int | str | None = DEFAULT_SLOTS
 
     def __post_init__(self) -> None:
         controller_from_spec(self.spec)  # a bad spec fails here, not in a worker

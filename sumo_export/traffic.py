@@ -33,15 +33,17 @@ from jaxround.core.params import EnvParams
 from jaxround.core.state import EnvState
 from jaxround.envs.observe import OBSERVATION_SIZES
 from jaxround.envs.roundabout import RoundaboutEnv, make
+from jaxround.envs.slots import ROAD
 from jaxround.scenario.config import ScenarioConfig
 from jaxround.scenario.schedule import Schedule
 from sumo_export.scenario import vehicle_id
 
 #: Columns of the packed state handed to the jitted observer.
 COLUMNS = ("active", "route", "pos", "speed", "accel", "waiting_s", "is_av")
-#: Vehicle slots by default: None, the scenario's ``simulation.max_vehicles``,
-#: else what the road holds (`jaxround.core.capacity`), so every vehicle has one.
-DEFAULT_SLOTS: int | None = None
+#: Vehicle slots by default: what the road holds (`jaxround.core.capacity`),
+#: so every vehicle in SUMO has one whatever the traffic (each step still
+#: uses the smallest of `slot_sizes` that holds its vehicles).
+DEFAULT_SLOTS: int | str | None = ROAD
 #: Smallest slot count the observer is compiled for.
 MIN_SLOTS = 32
 
@@ -83,7 +85,8 @@ class SumoObserver:
         cfg: the scenario.
         schedule: the schedule SUMO runs (routes and classes of its vehicles).
         observer: the observer's name (`jaxround.envs.observe`).
-        max_slots: vehicle slots M (None: `DEFAULT_SLOTS`); vehicles beyond
+        max_slots: vehicle slots M (`DEFAULT_SLOTS`: the road's; None: the
+            config's, else what the traffic needs); vehicles beyond
             them get no slot and are counted in `overflow_vehicle_steps`.
         strict: raise OverflowError instead of counting when the slots overflow.
     """
@@ -93,7 +96,7 @@ class SumoObserver:
         cfg: ScenarioConfig,
         schedule: Schedule,
         observer: str,
-        max_slots: int | None = DEFAULT_SLOTS,
+        max_slots: int | str | None = DEFAULT_SLOTS,
         strict: bool = False,
     ) -> None:
         if observer not in OBSERVATION_SIZES:

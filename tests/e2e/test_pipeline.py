@@ -69,8 +69,8 @@ def test_main_job_writes_every_result(finished_run: Path) -> None:
         assert pair["diff"] == pytest.approx(mean_policy - mean_plain, abs=1e-6)
     assert "100" in results["comparison"]["sumo_to_jax_gain"]
     assert results["training"]["updates"] == 2
-    # the JAX evaluation's slots: the road's (Milan's network), none overflowed
-    assert results["max_vehicles"] == 76 and results["jax_slot_overflow"] == 0
+    # the JAX evaluation's slots: what the traffic needs, none overflowed
+    assert results["max_vehicles"] < 76 and results["jax_slot_overflow"] == 0
     assert results["jax_not_arrived"] == 0 and results["cap_s"] > 0
     for name in (
         "train/policy.npz",

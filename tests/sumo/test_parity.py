@@ -21,4 +21,6 @@ def test_default_roundabout_matches_sumo_on_a_busy_quarter_hour() -> None:
     assert report["per_vehicle_median_abs_err_s"] <= 1.0
     assert report["per_vehicle_exact_share"] > 0.4  # 0.50 measured
     assert report["jax_slot_overflow"] == 0 and report["sumo_collisions"] == 0
-    assert report["max_vehicles"] == 76  # the road's capacity, by default
+    # by default the slots the traffic needs, far fewer than the road's 76
+    assert report["max_vehicles"] < 76
+    assert report["max_vehicles_tried"] == [report["max_vehicles"]]
