@@ -73,10 +73,12 @@ def cmd_serve(args: argparse.Namespace) -> None:
         raise UsageError(str(err)) from None
     import uvicorn
 
+    from jaxround.study.logs import log_to_stderr
     from jaxround.study.protocol import MAX_MESSAGE_BYTES
     from jaxround.study.server import create_app
 
     token = secrets.token_urlsafe(18)
+    log_to_stderr()
     app = create_app(settings, database, token)
     print(f"jaxround study: open http://{args.host}:{args.port}/ in a browser")
     print(

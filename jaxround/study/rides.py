@@ -17,6 +17,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
+from jaxround.study.logs import log_event
 from jaxround.study.settings import StudySettings
 from jaxround.study.sim import RideSpec
 from jaxround.study.storage import StudyDatabase, utc_now
@@ -54,6 +55,7 @@ class Ride:
     delays_ms: dict[int, float] = field(default_factory=dict)
     latency: list[dict[str, float]] = field(default_factory=list)
     frames_dropped: int = 0
+    requested_at: float = field(default_factory=time.monotonic)
     done: asyncio.Event = field(default_factory=asyncio.Event)
 
     @property
@@ -123,7 +125,19 @@ class RideManager:
             raise
         child.close()
         asyncio.get_running_loop().add_reader(parent.fileno(), self._on_message, ride)
+        self.log(ride, "ride_requested", share=spec.share)
         return ride
+
+    @staticmethod
+    def log(ride: Ride, event: str, **fields: Any) -> None:
+        """A log line of this ride (`jaxround.study.logs`)."""
+        log_event(
+            event,
+            participant=ride.participant_id,
+            ride=ride.ride_id,
+            kind=ride.kind,
+            **fields,
+        )
 
     @staticmethod
     def _blocking(ride: Ride) -> None:
@@ -157,6 +171,8 @@ class RideManager:
             ride.queue.put_nowait(("frame", (t0, step, body[FRAME_HEADER.size :])))
         elif tag == b"R":
             ride.queue.put_nowait(("ready", json.loads(body)))
+            waited = time.monotonic() - ride.requested_at
+            self.log(ride, "ride_ready", warmup_wall_s=round(waited, 1))
         elif tag == b"E":
             self._unwatch(ride)
             self._spawn(self._finish(ride, json.loads(body), None))
@@ -207,6 +223,15 @@ class RideManager:
             )
         )
         record["latency"] = ride.latency
+        self.log(
+            ride,
+            "ride_ended",
+            status=row["status"],
+            error=row.get("error"),
+            steps=row.get("steps"),
+            crossing_time_s=row.get("crossing_time_s"),
+            delay_p99_ms=_rounded(row.get("delay_p99_ms")),
+        )
         try:
             await asyncio.to_thread(self.database.save_ride, record)
         finally:
@@ -262,6 +287,10 @@ class RideManager:
             *(self.stop(r, "server_stopped") for r in list(self.rides.values())),
             return_exceptions=True,
         )
+
+
+def _rounded(x: float | None) -> float | None:
+    return None if x is None else round(x, 2)
 
 
 def _summary(row: dict[str, Any]) -> dict[str, Any]:
