@@ -53,7 +53,9 @@ def cmd_serve(args: argparse.Namespace) -> None:
         max_participants=args.max_participants,
         warmup_s=args.warmup_s,
         ride_s=args.ride_s,
+        passes=args.passes,
         practice_s=args.practice_s,
+        practice_passes=args.practice_passes,
         blind=args.blind,
         seed=args.seed,
         ego_origin=args.ego_from,
@@ -198,8 +200,22 @@ def add_study_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--ride-s",
         type=_seconds,
-        default=120.0,
-        help="longest ride, seconds (default 120)",
+        default=180.0,
+        help="longest ride, seconds (default 180)",
+    )
+    p.add_argument(
+        "--passes",
+        type=int,
+        default=8,
+        help="times the ego drives through the roundabout in a ride, each "
+        "time in again from its entry (default 8: about 70 s of driving with "
+        "the throttle held)",
+    )
+    p.add_argument(
+        "--practice-passes",
+        type=int,
+        default=2,
+        help="passes of the practice ride (default 2)",
     )
     p.add_argument(
         "--practice-s",

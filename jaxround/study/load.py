@@ -42,6 +42,10 @@ from jaxround.study.telemetry import percentile
 MAX_SECONDS = 600.0
 #: The scripted driver's target speed, m/s.
 TARGET_SPEED_MPS = 6.0
+#: The scripted driver looks at every this many frames (0.5 s, about a
+#: person's reaction time): pedals changed at every frame would keep the
+#: ride's steps started early (`jaxround.study.worker`) and measure that.
+DECIDE_EVERY = 5
 #: Seconds the server gets to start and a ride to warm up.
 START_TIMEOUT_S = 120.0
 
@@ -122,19 +126,27 @@ async def scripted_ride(base: str, kind: str = "first") -> dict[str, Any]:
         + f"/ws/rides/{ride['ride_id']}?token={ride['token']}"
     )
     frames, seq, sent = 0, -1, (None, None)
+    probes: dict[int, dict[str, Any]] = {}  # input number -> its times
+    latency: list[dict[str, float]] = []
     try:
         async with websockets.connect(url, open_timeout=30) as ws:
             async for text in ws:
+                now = time.perf_counter()
                 message = json.loads(text)
                 if message["type"] == "ready":
                     await ws.send(json.dumps({"type": "start"}))
                 elif message["type"] == "frame":
                     frames += 1
+                    for probe in probes.values():
+                        if message["seq"] >= probe["seq"]:
+                            probe.setdefault("received", now)
+                    latency += _measured(probes)
                     speed = message["ego"][3] if message["ego"] else 0.0
-                    pedals = _pedals(speed)
+                    pedals = _pedals(speed) if frames % DECIDE_EVERY == 0 else sent
                     if pedals != sent:
                         seq += 1
                         sent = pedals
+                        probes[seq] = {"seq": seq, "sent": time.perf_counter()}
                         await ws.send(
                             json.dumps(
                                 {
@@ -145,15 +157,38 @@ async def scripted_ride(base: str, kind: str = "first") -> dict[str, Any]:
                                 }
                             )
                         )
+                elif message["type"] == "timing" and message["seq"] in probes:
+                    probes[message["seq"]]["server"] = message
+                    latency += _measured(probes)
                 elif message["type"] == "end":
                     return {
                         "status": message["status"],
                         "frames": frames,
                         "error": message.get("error"),
+                        "latency": latency,
                     }
     except (OSError, websockets.exceptions.WebSocketException) as err:
         return {"status": "lost", "frames": frames, "error": repr(err)}
     return {"status": "lost", "frames": frames, "error": "closed without an end"}
+
+
+#: The server's parts of an input's way to the frame (the ``timing`` message).
+SERVER_PARTS = ("relay_in", "wait", "sumo", "policy", "frame", "relay_out")
+
+
+def _measured(probes: dict[int, dict[str, Any]]) -> list[dict[str, float]]:
+    """The inputs whose frame came and whose timing the server sent, part by
+    part (ms), taken out of `probes`: the server's parts, the WebSocket both
+    ways (``websocket``: what is left of the round trip) and ``total``."""
+    done = [n for n, p in probes.items() if "received" in p and "server" in p]
+    out = []
+    for n in done:
+        probe = probes.pop(n)
+        total = (probe["received"] - probe["sent"]) * 1e3
+        parts = {k: probe["server"][k] for k in SERVER_PARTS}
+        inside = sum(v for v in parts.values() if v is not None)
+        out.append({**parts, "websocket": total - inside, "total": total})
+    return out
 
 
 def _pedals(speed: float) -> tuple[float, float]:
@@ -281,6 +316,29 @@ def _figures(
             "median": percentile(policy_steps, 50),
             "p99": percentile(policy_steps, 99),
         },
+        "latency_ms": latency_parts(
+            [x for o in outcomes for x in o.get("latency", [])]
+        ),
+    }
+
+
+def latency_parts(records: list[dict[str, float]]) -> dict[str, Any]:
+    """Median and p99 of each part of the input-to-frame latency (ms) over
+    the scripted riders' inputs, and how many there were."""
+    names = (*SERVER_PARTS, "websocket", "total")
+    return {
+        "inputs": len(records),
+        **{
+            name: {
+                "median": percentile(
+                    [r[name] for r in records if r[name] is not None], 50
+                ),
+                "p99": percentile(
+                    [r[name] for r in records if r[name] is not None], 99
+                ),
+            }
+            for name in names
+        },
     }
 
 
@@ -297,6 +355,12 @@ def format_figures(figures: dict[str, Any]) -> str:
         return f"{ms(median[name])} / {ms(p99[name])}"
 
     outcomes = ", ".join(r["status"] for r in figures["rides"])
+    latency = figures["latency_ms"]
+    parts = ", ".join(
+        f"{name} {ms(v['median'])} / {ms(v['p99'])}"
+        for name, v in latency.items()
+        if name != "inputs"
+    )
     return "\n".join(
         [
             f"{figures['participants']} scripted rides at once, "
@@ -307,6 +371,7 @@ def format_figures(figures: dict[str, Any]) -> str:
             f"policy {phase('policy_ms')}, frame {phase('frame_ms')}",
             f"  steps where the policy acted: median {ms(policy['median'])}, "
             f"p99 {ms(policy['p99'])}",
+            f"input to frame over {latency['inputs']} inputs, median / p99: {parts}",
             f"late steps: {figures['late_steps']}; frames not handed out: "
             f"{figures['frames_lost']}; rides dropped: {figures['rides_dropped']} "
             f"({outcomes})",

@@ -10,6 +10,7 @@ import asyncio
 import collections
 import contextlib
 import time
+from typing import Any
 
 from fastapi import WebSocket
 from starlette.websockets import WebSocketDisconnect
@@ -51,18 +52,39 @@ async def _frames_out(websocket: WebSocket, manager: RideManager, ride: Ride) ->
             t0_ns, step, body = item
             await websocket.send_text(body.decode())
             manager.frame_sent(ride, t0_ns, step)
+        elif kind == "timing":
+            await websocket.send_json(_timing_message(ride, item))
+        elif kind == "preparing":
+            await websocket.send_json({"type": "preparing", **item})
         elif kind == "ready":
             await websocket.send_json(
                 {
                     "type": "ready",
                     "label": ride.label,
                     "ride_s": ride.spec.ride_s,
+                    "passes": ride.spec.passes,
                     **item,
                 }
             )
         elif kind == "end":
             await websocket.send_json({"type": "end", **item})
             return
+
+
+def _timing_message(ride: Ride, parts: dict[str, Any]) -> dict[str, Any]:
+    """Where an input's time went on the server's side, ms (rounded to
+    0.01): the ride process's parts and ``relay_out``, from the frame sent
+    by the ride process to the frame handed to the WebSocket."""
+    delay = ride.delays_ms.get(parts["step"])
+    inside = parts["sumo"] + parts["policy"] + parts["frame"]
+    relay_out = None if delay is None else max(delay - inside, 0.0)
+    names = ("relay_in", "wait", "sumo", "policy", "frame")
+    return {
+        "type": "timing",
+        "seq": parts["seq"],
+        **{name: round(parts[name], 2) for name in names},
+        "relay_out": None if relay_out is None else round(relay_out, 2),
+    }
 
 
 async def _messages_in(
@@ -79,6 +101,7 @@ async def _messages_in(
             message = await websocket.receive()
         except (WebSocketDisconnect, RuntimeError):
             return "abandoned"
+        received_ns = time.perf_counter_ns()
         if message["type"] == "websocket.disconnect":
             return "abandoned" if message.get("code") != 1009 else "bad_message"
         now = time.monotonic()
@@ -105,7 +128,7 @@ async def _messages_in(
             manager.send(ride, checked)
             manager.log(ride, "ride_started")
         elif checked["type"] == "input" and ride.started:
-            manager.send(ride, checked)
+            manager.send(ride, {**checked, "rx_ns": received_ns})
         elif checked["type"] == "latency" and ride.started:
             manager.add_latency(ride, checked["seq"], float(checked["ms"]))
 

@@ -169,6 +169,10 @@ class RideManager:
                 ride.queue.get_nowait()
                 ride.frames_dropped += 1
             ride.queue.put_nowait(("frame", (t0, step, body[FRAME_HEADER.size :])))
+        elif tag == b"T":
+            ride.queue.put_nowait(("timing", json.loads(body)))
+        elif tag == b"P":
+            ride.queue.put_nowait(("preparing", json.loads(body)))
         elif tag == b"R":
             ride.queue.put_nowait(("ready", json.loads(body)))
             waited = time.monotonic() - ride.requested_at
@@ -207,6 +211,7 @@ class RideManager:
         row = record["ride"]
         if ride.stop_reason is not None and row["status"] in ("abandoned", "error"):
             row["status"] = ride.stop_reason
+        row["passes"] = record.get("passes", 0)
         row.update(
             participant_id=ride.participant_id,
             kind=ride.kind,
@@ -229,13 +234,16 @@ class RideManager:
             status=row["status"],
             error=row.get("error"),
             steps=row.get("steps"),
+            passes=row["passes"],
             crossing_time_s=row.get("crossing_time_s"),
             delay_p99_ms=_rounded(row.get("delay_p99_ms")),
         )
+        summary = _summary(row)
+        del row["passes"]  # not a column: the log line and the page have it
         try:
             await asyncio.to_thread(self.database.save_ride, record)
         finally:
-            ride.queue.put_nowait(("end", _summary(row)))
+            ride.queue.put_nowait(("end", summary))
             await self._reap(ride)
             self.rides.pop(ride.ride_id, None)
             ride.done.set()
@@ -298,6 +306,7 @@ def _summary(row: dict[str, Any]) -> dict[str, Any]:
     keys = (
         "status",
         "error",
+        "passes",
         "crossing_time_s",
         "collisions",
         "hard_brakings",

@@ -135,6 +135,9 @@ def create_app(
             "places_free": manager.places_free,
             "ride_s": settings.ride_s,
             "practice_s": settings.practice_s,
+            "passes": settings.passes,
+            "practice_passes": settings.practice_passes,
+            "estimate_min": settings.estimated_minutes(),
             "step_s": settings.step_s,
             "pedal_map": pedal_map,
         }
@@ -195,17 +198,21 @@ def create_app(
     async def start_ride(body: RideRequest) -> JSONResponse:
         who = await asyncio.to_thread(participant, body.participant_id)
         if body.kind == "practice":
-            share, label, ride_s, warmup_s = (
-                None,
-                "practice ride",
+            share, label = None, "practice ride"
+            ride_s, warmup_s, passes = (
                 settings.practice_s,
                 0.0,
+                settings.practice_passes,
             )
         else:
             position = 0 if body.kind == "first" else 1
             share = ORDERS[who["ride_order"]][position]
             label = ride_label(share, position, bool(who["blind"]))
-            ride_s, warmup_s = settings.ride_s, settings.warmup_s
+            ride_s, warmup_s, passes = (
+                settings.ride_s,
+                settings.warmup_s,
+                settings.passes,
+            )
         spec = RideSpec(
             ride_id=secrets.token_urlsafe(12),
             config=settings.config,
@@ -217,6 +224,7 @@ def create_app(
             step_s=settings.step_s,
             ego_origin=origin,
             ego_destination=destination,
+            passes=passes,
         )
         try:
             ride = await manager.start(spec, body.participant_id, body.kind, label)
@@ -230,6 +238,7 @@ def create_app(
                 "token": ride.token,
                 "label": label,
                 "ride_s": ride_s,
+                "passes": passes,
             },
             status_code=201,
         )

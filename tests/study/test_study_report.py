@@ -17,9 +17,11 @@ from pathlib import Path
 import pytest
 
 from jaxround.apps.cli.main import main
+from jaxround.scenario.config import load_config
 from jaxround.study.protocol import MAX_MESSAGE_BYTES, BadMessageError, parse_message
 from jaxround.study.questions import PAPER_COUNTS, paper_option, worded_questions
 from jaxround.study.report import build_report, sign_test, tables_markdown
+from jaxround.study.settings import StudySettings
 from jaxround.study.storage import (
     COLUMNS,
     AnswerExistsError,
@@ -331,3 +333,15 @@ def test_the_pages_are_package_data_and_load_nothing_from_elsewhere() -> None:
     for name in ("index.html", "app.js", "drive.js", "scene.js", "hud.js"):
         text = (static / "static" / name).read_text()
         assert "http://" not in text and "https://" not in text, name
+
+
+def test_the_consent_pages_estimate_follows_the_settings() -> None:
+    cfg = load_config("milan")
+    settings = StudySettings(policy=Path("policy.npz"))
+    # practice 90 s, two rides of 180 s with 30 s of warm-up each, 180 s of forms
+    assert settings.estimated_minutes() == 12  # 690 s
+    shorter = settings.replace(ride_s=60.0, practice_s=30.0)
+    assert shorter.estimated_minutes() == 7  # 390 s
+    for name in ("passes", "practice_passes"):
+        with pytest.raises(ValueError, match=f"{name}: 0, expected 1-50"):
+            settings.replace(**{name: 0}).validate(cfg)
