@@ -76,6 +76,7 @@ def cmd_serve(args: argparse.Namespace) -> None:
     import uvicorn
 
     from jaxround.study.logs import log_to_stderr
+    from jaxround.study.priority import SERVER_RT_PRIORITY, raise_priority
     from jaxround.study.protocol import MAX_MESSAGE_BYTES
     from jaxround.study.server import create_app
 
@@ -88,6 +89,8 @@ def cmd_serve(args: argparse.Namespace) -> None:
         f"participants drive at once"
     )
     print(f"  admin token (report and export endpoints): {token}", flush=True)
+    priority = raise_priority(SERVER_RT_PRIORITY)
+    print(f"  scheduling priority: {priority} (see docs/study.md)", flush=True)
     if args.host not in ("127.0.0.1", "localhost", "::1"):
         print(f"  listening on {args.host}: reachable from other machines", flush=True)
     uvicorn.run(

@@ -8,8 +8,10 @@ first ride at once (order counterbalanced: half at 20% AVs, half at 80%),
 each over its own WebSocket and with its own SUMO process, and reads the
 server's figures back from the database: the delay per step from the step's
 start in the ride process to the frame handed to the WebSocket (SUMO step,
-policy, frame out, relay), its phases, late steps and rides dropped (a ride
-that did not end at its time limit or with the ego's arrival).
+frame out, relay; the policy acts after the frame), its phases, late steps,
+rides dropped (a ride that did not end at its time limit or after its
+passes), and the riders' input-to-frame latency part by part. The riders
+(`jaxround.study.riders`) run in a process of their own at a lower priority.
 
 Without ``--policy`` the AVs are driven by a stand-in with random weights
 that asks for full acceleration at every step, as the trained policy does
@@ -19,33 +21,24 @@ not depend on the weights.
 
 from __future__ import annotations
 
-import asyncio
-import json
 import socket
 import subprocess
 import sys
 import tempfile
 import time
-import urllib.error
-import urllib.request
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from jaxround.scenario.config import ScenarioConfig, load_config
+from jaxround.study.riders import SERVER_PARTS, http_json, ride_all
 from jaxround.study.settings import MAX_PARTICIPANTS_LIMIT
 from jaxround.study.storage import StudyDatabase
 from jaxround.study.telemetry import percentile
 
 #: Longest load run, seconds of riding.
 MAX_SECONDS = 600.0
-#: The scripted driver's target speed, m/s.
-TARGET_SPEED_MPS = 6.0
-#: The scripted driver looks at every this many frames (0.5 s, about a
-#: person's reaction time): pedals changed at every frame would keep the
-#: ride's steps started early (`jaxround.study.worker`) and measure that.
-DECIDE_EVERY = 5
 #: Seconds the server gets to start and a ride to warm up.
 START_TIMEOUT_S = 120.0
 
@@ -83,120 +76,6 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-def _http(method: str, url: str, body: dict | None = None) -> tuple[int, dict]:
-    data = None if body is None else json.dumps(body).encode()
-    request = urllib.request.Request(
-        url, data=data, method=method, headers={"Content-Type": "application/json"}
-    )
-    try:
-        with urllib.request.urlopen(request, timeout=30) as response:
-            return response.status, json.loads(response.read())
-    except urllib.error.HTTPError as err:
-        return err.code, json.loads(err.read() or b"{}")
-
-
-async def scripted_ride(base: str, kind: str = "first") -> dict[str, Any]:
-    """One participant: consent, one ride driven at `TARGET_SPEED_MPS`.
-
-    Returns:
-        ``{"status", "frames", "error"}``; status is the ride's own, or
-        'busy' / 'refused' / 'lost' when the server did not let it finish.
-    """
-    import websockets
-
-    status, body = await asyncio.to_thread(
-        _http, "POST", f"{base}/api/participants", {"consent": True}
-    )
-    if status != 201:
-        return {"status": "refused", "frames": 0, "error": body}
-    pid = body["participant_id"]
-    status, ride = await asyncio.to_thread(
-        _http, "POST", f"{base}/api/rides", {"participant_id": pid, "kind": kind}
-    )
-    if status != 201:
-        return {
-            "status": "busy" if status == 503 else "refused",
-            "frames": 0,
-            "error": ride,
-        }
-    url = (
-        base.replace("http", "ws")
-        + f"/ws/rides/{ride['ride_id']}?token={ride['token']}"
-    )
-    frames, seq, sent = 0, -1, (None, None)
-    probes: dict[int, dict[str, Any]] = {}  # input number -> its times
-    latency: list[dict[str, float]] = []
-    try:
-        async with websockets.connect(url, open_timeout=30) as ws:
-            async for text in ws:
-                now = time.perf_counter()
-                message = json.loads(text)
-                if message["type"] == "ready":
-                    await ws.send(json.dumps({"type": "start"}))
-                elif message["type"] == "frame":
-                    frames += 1
-                    for probe in probes.values():
-                        if message["seq"] >= probe["seq"]:
-                            probe.setdefault("received", now)
-                    latency += _measured(probes)
-                    speed = message["ego"][3] if message["ego"] else 0.0
-                    pedals = _pedals(speed) if frames % DECIDE_EVERY == 0 else sent
-                    if pedals != sent:
-                        seq += 1
-                        sent = pedals
-                        probes[seq] = {"seq": seq, "sent": time.perf_counter()}
-                        await ws.send(
-                            json.dumps(
-                                {
-                                    "type": "input",
-                                    "seq": seq,
-                                    "throttle": pedals[0],
-                                    "brake": pedals[1],
-                                }
-                            )
-                        )
-                elif message["type"] == "timing" and message["seq"] in probes:
-                    probes[message["seq"]]["server"] = message
-                    latency += _measured(probes)
-                elif message["type"] == "end":
-                    return {
-                        "status": message["status"],
-                        "frames": frames,
-                        "error": message.get("error"),
-                        "latency": latency,
-                    }
-    except (OSError, websockets.exceptions.WebSocketException) as err:
-        return {"status": "lost", "frames": frames, "error": repr(err)}
-    return {"status": "lost", "frames": frames, "error": "closed without an end"}
-
-
-#: The server's parts of an input's way to the frame (the ``timing`` message).
-SERVER_PARTS = ("relay_in", "wait", "sumo", "policy", "frame", "relay_out")
-
-
-def _measured(probes: dict[int, dict[str, Any]]) -> list[dict[str, float]]:
-    """The inputs whose frame came and whose timing the server sent, part by
-    part (ms), taken out of `probes`: the server's parts, the WebSocket both
-    ways (``websocket``: what is left of the round trip) and ``total``."""
-    done = [n for n, p in probes.items() if "received" in p and "server" in p]
-    out = []
-    for n in done:
-        probe = probes.pop(n)
-        total = (probe["received"] - probe["sent"]) * 1e3
-        parts = {k: probe["server"][k] for k in SERVER_PARTS}
-        inside = sum(v for v in parts.values() if v is not None)
-        out.append({**parts, "websocket": total - inside, "total": total})
-    return out
-
-
-def _pedals(speed: float) -> tuple[float, float]:
-    """A driver who holds about `TARGET_SPEED_MPS` (pedals in steps of 0.25)."""
-    error = TARGET_SPEED_MPS - speed
-    throttle = round(min(max(error / 3.0, 0.0), 1.0) * 4) / 4
-    brake = round(min(max(-error / 6.0, 0.0), 1.0) * 4) / 4
-    return throttle, brake
 
 
 def run_load(
@@ -243,7 +122,7 @@ def run_load(
             base = f"http://127.0.0.1:{port}"
             _wait_for(server, base, folder / "server.log")
             started = time.perf_counter()
-            outcomes = asyncio.run(_all_rides(base, participants))
+            outcomes = ride_all(base, participants)
             wall = time.perf_counter() - started
         finally:
             server.terminate()
@@ -253,19 +132,13 @@ def run_load(
         return _figures(outcomes, database, wall)
 
 
-async def _all_rides(base: str, participants: int) -> list[dict[str, Any]]:
-    return list(
-        await asyncio.gather(*(scripted_ride(base) for _ in range(participants)))
-    )
-
-
 def _wait_for(server: subprocess.Popen, base: str, log: Path) -> None:
     deadline = time.monotonic() + START_TIMEOUT_S
     while time.monotonic() < deadline:
         if server.poll() is not None:
             raise RuntimeError(f"the server stopped: {log.read_text()}")
         try:
-            if _http("GET", f"{base}/api/study")[0] == 200:
+            if http_json("GET", f"{base}/api/study")[0] == 200:
                 return
         except OSError:
             time.sleep(0.2)

@@ -76,9 +76,9 @@ def _timing_message(ride: Ride, parts: dict[str, Any]) -> dict[str, Any]:
     0.01): the ride process's parts and ``relay_out``, from the frame sent
     by the ride process to the frame handed to the WebSocket."""
     delay = ride.delays_ms.get(parts["step"])
-    inside = parts["sumo"] + parts["policy"] + parts["frame"]
+    inside = parts["sumo"] + parts["frame"]
     relay_out = None if delay is None else max(delay - inside, 0.0)
-    names = ("relay_in", "wait", "sumo", "policy", "frame")
+    names = ("relay_in", "wait", "sumo", "frame")
     return {
         "type": "timing",
         "seq": parts["seq"],

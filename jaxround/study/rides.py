@@ -171,6 +171,8 @@ class RideManager:
             ride.queue.put_nowait(("frame", (t0, step, body[FRAME_HEADER.size :])))
         elif tag == b"T":
             ride.queue.put_nowait(("timing", json.loads(body)))
+        elif tag == b"S":
+            self.log(ride, "ride_priority", **json.loads(body))
         elif tag == b"P":
             ride.queue.put_nowait(("preparing", json.loads(body)))
         elif tag == b"R":

@@ -226,18 +226,22 @@ class RideSimulation:
         every = max(1, round(PROGRESS_EVERY_S / self.spec.step_s))
         while self.time_s + self.spec.step_s <= last:
             self._advance()
+            self.act()
             if on_progress is not None and self.steps % every == 0:
                 on_progress(min(self.time_s / max(last, 1e-9), 1.0))
 
-    def step(self, throttle: float, brake: float) -> tuple[int, int]:
-        """One real-time step: command the ego, step SUMO, let the policy act.
+    def step(self, throttle: float, brake: float) -> int:
+        """One real-time step: command the ego, step SUMO, read the ego.
+
+        The policy acts afterwards (`act`), once the step's frame is out:
+        its commands take effect in the next step either way.
 
         Args:
             throttle: pedal position in [0, 1].
             brake: pedal position in [0, 1].
 
         Returns:
-            (SUMO ns, policy ns): time in the SUMO step and in the controller.
+            the time in SUMO's step, ns.
         """
         if self.ego_on_road:
             accel = ego_acceleration(throttle, brake)
@@ -245,19 +249,25 @@ class RideSimulation:
                 max(self.ego_speed + accel * self.spec.step_s, 0.0), EGO_MAX_SPEED_MPS
             )
             self.libsumo.vehicle.setSpeed(self.ego_id, speed)
-        sumo_ns, policy_ns = self._advance()
+        sumo_ns = self._advance()
         self._read_ego(throttle, brake)
-        return sumo_ns, policy_ns
+        return sumo_ns
 
-    def _advance(self) -> tuple[int, int]:
+    def act(self) -> int:
+        """Let the policy act on the state after the last step, when it is
+        its turn (every ``dt_s / step_s`` steps); returns its time, ns."""
+        if self.controller is None or self.steps % self.policy_every != 0:
+            return 0
+        t0 = time.perf_counter_ns()
+        self.controller(self.libsumo, self.time_s)
+        return time.perf_counter_ns() - t0
+
+    def _advance(self) -> int:
         t0 = time.perf_counter_ns()
         self.libsumo.simulation.step()
         self.steps += 1
         self.time_s = self.libsumo.simulation.getTime()
-        t1 = time.perf_counter_ns()
-        if self.controller is not None and self.steps % self.policy_every == 0:
-            self.controller(self.libsumo, self.time_s)
-        return t1 - t0, time.perf_counter_ns() - t1
+        return time.perf_counter_ns() - t0
 
     def _read_ego(self, throttle: float, brake: float) -> None:
         veh = self.libsumo.vehicle

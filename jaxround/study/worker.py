@@ -7,23 +7,27 @@ It talks to the server over a `multiprocessing` pipe, in bytes:
   start (``perf_counter_ns``, 8 bytes, big-endian) + the step number (4
   bytes) + the frame's JSON, once per step; ``T`` + JSON after the frame of
   a step that applied a new input: where that input's time went in this
-  process (`input_timing`); ``E`` + JSON, the ride's record for
+  process (`input_timing`); ``S`` + JSON ``{"priority"}`` when driving
+  starts (what `jaxround.study.priority` got); ``E`` + JSON, the ride's record for
   `jaxround.study.storage.StudyDatabase.save_ride`, last;
 - from the server: JSON ``{"type": "start"}``, ``{"type": "input", "seq",
   "throttle", "brake", "rx_ns"}`` (checked by the server, which adds when it
   received it) and ``{"type": "stop", "reason"}``.
 
-A step is: the latest pedals, SUMO's step (and the policy's every
-``dt_s / step_s`` steps), the frame sent. Steps start on a fixed real-time
-grid; a step that starts more than a step late moves the grid and is counted
-in ``late_steps``. A pedal pressed or released (from 0 or to 0) starts the
-next step at once instead of at its time on the grid, or, when that step was
-started early already, as soon as the one after it is due within a step:
-the grid stays, so the simulated time never runs more than one step ahead
-of the wall clock, and a press does not wait for the grid's next step (up to
-0.1 s, 50 ms on average). The ride ends after the ego's last pass, at its time
-limit, when the server says stop, or when the server is gone (the pipe
-closes), and the process then exits.
+A step is: the latest pedals, SUMO's step, the frame sent, then the
+policy's turn every ``dt_s / step_s`` steps (its commands take effect in the
+next step, so it need not delay the frame). Steps start on a fixed
+real-time grid; a step that starts more than a step late moves the grid and
+is counted in ``late_steps``. A pedal pressed or released (from 0 or to 0)
+starts the next step at once instead of at its time on the grid, or, when
+that step was started early already, as soon as the one after it is due
+within a step: the grid stays, so the simulated time never runs more than
+one step ahead of the wall clock, and a press does not wait for the grid's
+next step (up to 0.1 s, 50 ms on average). Once the warm-up is over the
+process asks for a higher scheduling priority (`jaxround.study.priority`).
+The ride ends after the ego's last pass, at its time limit, when the server
+says stop, or when the server is gone (the pipe closes), and the process
+then exits.
 """
 
 from __future__ import annotations
@@ -38,6 +42,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxround.study.frames import frame_bytes, ride_frame
+from jaxround.study.priority import RIDE_RT_PRIORITY, raise_priority
 from jaxround.study.sim import RideSimulation, RideSpec
 from jaxround.study.storage import utc_now
 from jaxround.study.telemetry import hard_brakings, summarize
@@ -112,6 +117,8 @@ def drive(
                 "error": None,
                 "late_steps": 0,
             }
+    priority = raise_priority(RIDE_RT_PRIORITY)
+    conn.send_bytes(b"S" + json.dumps({"priority": priority}).encode())
     pedals: dict[str, Any] = {"throttle": 0.0, "brake": 0.0, "seq": -1}
     period_ns = round(spec.step_s * 1e9)
     n_steps = round(spec.ride_s / spec.step_s)
@@ -126,14 +133,15 @@ def drive(
         if t0 - next_ns > period_ns:
             late += 1
             next_ns = t0
-        sumo_ns, policy_ns = sim.step(pedals["throttle"], pedals["brake"])
+        sumo_ns = sim.step(pedals["throttle"], pedals["brake"])
         frame = frame_bytes(ride_frame(sim, step, pedals["seq"]))
         conn.send_bytes(b"F" + FRAME_HEADER.pack(t0, step) + frame)
-        frame_ns = time.perf_counter_ns() - t0 - sumo_ns - policy_ns
+        frame_ns = time.perf_counter_ns() - t0 - sumo_ns
         if pedals["seq"] != applied_seq:
             applied_seq = pedals["seq"]
-            timing = input_timing(pedals, step, t0, sumo_ns, policy_ns, frame_ns)
+            timing = input_timing(pedals, step, t0, sumo_ns, frame_ns)
             conn.send_bytes(b"T" + json.dumps(timing).encode())
+        policy_ns = sim.act()  # off the frame's path: it acts on the next step
         sim.trace[-1].update(
             step=step,
             sumo_ms=sumo_ns / 1e6,
@@ -147,23 +155,18 @@ def drive(
 
 
 def input_timing(
-    pedals: dict[str, Any],
-    step: int,
-    t0_ns: int,
-    sumo_ns: int,
-    policy_ns: int,
-    frame_ns: int,
+    pedals: dict[str, Any], step: int, t0_ns: int, sumo_ns: int, frame_ns: int
 ) -> dict[str, Any]:
     """Where an input's time went in this process, ms: from the server's
-    receipt to this process (``relay_in``), waiting for the step (``wait``),
-    the SUMO step, the policy, building and sending the frame."""
+    receipt to this process (``relay_in``: the pipe, and the policy if it was
+    acting), waiting for the step (``wait``), the SUMO step, reading the
+    vehicles and sending the frame. The policy acts after the frame."""
     return {
         "seq": pedals["seq"],
         "step": step,
         "relay_in": (pedals["got_ns"] - pedals["rx_ns"]) / 1e6,
         "wait": (t0_ns - pedals["got_ns"]) / 1e6,
         "sumo": sumo_ns / 1e6,
-        "policy": policy_ns / 1e6,
         "frame": frame_ns / 1e6,
     }
 

@@ -125,8 +125,8 @@ def test_a_participant_completes_the_study_in_chromium(
 
 
 #: The parts of the input-to-frame latency, in their order (docs/study.md).
-LATENCY_PARTS = ("event", "websocket", "relay_in", "wait", "sumo", "policy",
-                 "frame", "relay_out", "draw", "total")  # fmt: skip
+LATENCY_PARTS = ("event", "websocket", "relay_in", "wait", "sumo", "frame",
+                 "relay_out", "draw", "total")  # fmt: skip
 #: Seconds between two taps of the brake (each a press and a release).
 TAP_EVERY_S = 1.5
 

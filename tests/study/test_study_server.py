@@ -323,7 +323,8 @@ def test_the_log_has_a_line_per_ride_with_its_status_and_no_personal_data(
     assert ended == {driven["ride_id"]: "time_limit", broken["ride_id"]: "bad_message"}
     assert len([line for line in mine if line["event"] == "ride_ended"]) == 2
     events = [line["event"] for line in mine if line.get("ride") == driven["ride_id"]]
-    assert events == ["ride_requested", "ride_ready", "ride_started", "ride_ended"]
+    assert events == ["ride_requested", "ride_ready", "ride_started",
+                      "ride_priority", "ride_ended"]  # fmt: skip
     bad = [line for line in mine if line["event"] == "bad_message"]
     assert len(bad) == 1 and "not JSON" in bad[0]["reason"]
     assert [line["event"] for line in mine][:2] == ["participant_added",

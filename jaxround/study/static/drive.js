@@ -233,7 +233,7 @@ class Ride {
     const total = drawnAt - p.eventAt;
     const record = { seq: p.seq, total, event: p.sentAt - p.eventAt, draw: drawnAt - p.receivedAt };
     if (p.server) {
-      const parts = ["relay_in", "wait", "sumo", "policy", "frame", "relay_out"];
+      const parts = ["relay_in", "wait", "sumo", "frame", "relay_out"];
       let inServer = 0;
       for (const part of parts) { record[part] = p.server[part]; inServer += p.server[part] || 0; }
       record.websocket = p.receivedAt - p.sentAt - inServer;
