@@ -297,7 +297,7 @@ class RideSimulation:
             )
             row.update(self._gap_to_leader())
             self._record_collisions()
-        elif self.pass_entered_s is not None:  # it has just left
+        elif self.pass_entered_s is not None and self._ego_arrived():  # it left
             self.crossings.append(round(self.time_s - self.pass_entered_s, 3))
             self.pass_entered_s = None
             self.ego_pose = None
@@ -306,6 +306,11 @@ class RideSimulation:
             else:
                 self.ego_arrived_s = self.time_s
         self.trace.append(row)
+
+    def _ego_arrived(self) -> bool:
+        """The ego left the network in this step (not a teleport, after which
+        it comes back under its id)."""
+        return self.ego_id in self.libsumo.simulation.getArrivedIDList()
 
     def _send_ego_again(self) -> None:
         """The next pass: the ego from its entry again, as it first departed."""
