@@ -53,7 +53,9 @@ def cmd_serve(args: argparse.Namespace) -> None:
         max_participants=args.max_participants,
         warmup_s=args.warmup_s,
         ride_s=args.ride_s,
+        passes=args.passes,
         practice_s=args.practice_s,
+        practice_passes=args.practice_passes,
         blind=args.blind,
         seed=args.seed,
         ego_origin=args.ego_from,
@@ -73,10 +75,13 @@ def cmd_serve(args: argparse.Namespace) -> None:
         raise UsageError(str(err)) from None
     import uvicorn
 
+    from jaxround.study.logs import log_to_stderr
+    from jaxround.study.priority import SERVER_RT_PRIORITY, raise_priority
     from jaxround.study.protocol import MAX_MESSAGE_BYTES
     from jaxround.study.server import create_app
 
     token = secrets.token_urlsafe(18)
+    log_to_stderr()
     app = create_app(settings, database, token)
     print(f"jaxround study: open http://{args.host}:{args.port}/ in a browser")
     print(
@@ -84,6 +89,8 @@ def cmd_serve(args: argparse.Namespace) -> None:
         f"participants drive at once"
     )
     print(f"  admin token (report and export endpoints): {token}", flush=True)
+    priority = raise_priority(SERVER_RT_PRIORITY)
+    print(f"  scheduling priority: {priority} (see docs/study.md)", flush=True)
     if args.host not in ("127.0.0.1", "localhost", "::1"):
         print(f"  listening on {args.host}: reachable from other machines", flush=True)
     uvicorn.run(
@@ -196,8 +203,22 @@ def add_study_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--ride-s",
         type=_seconds,
-        default=120.0,
-        help="longest ride, seconds (default 120)",
+        default=180.0,
+        help="longest ride, seconds (default 180)",
+    )
+    p.add_argument(
+        "--passes",
+        type=int,
+        default=8,
+        help="times the ego drives through the roundabout in a ride, each "
+        "time in again from its entry (default 8: about 70 s of driving with "
+        "the throttle held)",
+    )
+    p.add_argument(
+        "--practice-passes",
+        type=int,
+        default=2,
+        help="passes of the practice ride (default 2)",
     )
     p.add_argument(
         "--practice-s",

@@ -8,8 +8,10 @@ first ride at once (order counterbalanced: half at 20% AVs, half at 80%),
 each over its own WebSocket and with its own SUMO process, and reads the
 server's figures back from the database: the delay per step from the step's
 start in the ride process to the frame handed to the WebSocket (SUMO step,
-policy, frame out, relay), its phases, late steps and rides dropped (a ride
-that did not end at its time limit or with the ego's arrival).
+frame out, relay; the policy acts after the frame), its phases, late steps,
+rides dropped (a ride that did not end at its time limit or after its
+passes), and the riders' input-to-frame latency part by part. The riders
+(`jaxround.study.riders`) run in a process of their own at a lower priority.
 
 Without ``--policy`` the AVs are driven by a stand-in with random weights
 that asks for full acceleration at every step, as the trained policy does
@@ -19,29 +21,24 @@ not depend on the weights.
 
 from __future__ import annotations
 
-import asyncio
-import json
 import socket
 import subprocess
 import sys
 import tempfile
 import time
-import urllib.error
-import urllib.request
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from jaxround.scenario.config import ScenarioConfig, load_config
+from jaxround.study.riders import SERVER_PARTS, http_json, ride_all
 from jaxround.study.settings import MAX_PARTICIPANTS_LIMIT
 from jaxround.study.storage import StudyDatabase
 from jaxround.study.telemetry import percentile
 
 #: Longest load run, seconds of riding.
 MAX_SECONDS = 600.0
-#: The scripted driver's target speed, m/s.
-TARGET_SPEED_MPS = 6.0
 #: Seconds the server gets to start and a ride to warm up.
 START_TIMEOUT_S = 120.0
 
@@ -79,89 +76,6 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-def _http(method: str, url: str, body: dict | None = None) -> tuple[int, dict]:
-    data = None if body is None else json.dumps(body).encode()
-    request = urllib.request.Request(
-        url, data=data, method=method, headers={"Content-Type": "application/json"}
-    )
-    try:
-        with urllib.request.urlopen(request, timeout=30) as response:
-            return response.status, json.loads(response.read())
-    except urllib.error.HTTPError as err:
-        return err.code, json.loads(err.read() or b"{}")
-
-
-async def scripted_ride(base: str, kind: str = "first") -> dict[str, Any]:
-    """One participant: consent, one ride driven at `TARGET_SPEED_MPS`.
-
-    Returns:
-        ``{"status", "frames", "error"}``; status is the ride's own, or
-        'busy' / 'refused' / 'lost' when the server did not let it finish.
-    """
-    import websockets
-
-    status, body = await asyncio.to_thread(
-        _http, "POST", f"{base}/api/participants", {"consent": True}
-    )
-    if status != 201:
-        return {"status": "refused", "frames": 0, "error": body}
-    pid = body["participant_id"]
-    status, ride = await asyncio.to_thread(
-        _http, "POST", f"{base}/api/rides", {"participant_id": pid, "kind": kind}
-    )
-    if status != 201:
-        return {
-            "status": "busy" if status == 503 else "refused",
-            "frames": 0,
-            "error": ride,
-        }
-    url = (
-        base.replace("http", "ws")
-        + f"/ws/rides/{ride['ride_id']}?token={ride['token']}"
-    )
-    frames, seq, sent = 0, -1, (None, None)
-    try:
-        async with websockets.connect(url, open_timeout=30) as ws:
-            async for text in ws:
-                message = json.loads(text)
-                if message["type"] == "ready":
-                    await ws.send(json.dumps({"type": "start"}))
-                elif message["type"] == "frame":
-                    frames += 1
-                    speed = message["ego"][3] if message["ego"] else 0.0
-                    pedals = _pedals(speed)
-                    if pedals != sent:
-                        seq += 1
-                        sent = pedals
-                        await ws.send(
-                            json.dumps(
-                                {
-                                    "type": "input",
-                                    "seq": seq,
-                                    "throttle": pedals[0],
-                                    "brake": pedals[1],
-                                }
-                            )
-                        )
-                elif message["type"] == "end":
-                    return {
-                        "status": message["status"],
-                        "frames": frames,
-                        "error": message.get("error"),
-                    }
-    except (OSError, websockets.exceptions.WebSocketException) as err:
-        return {"status": "lost", "frames": frames, "error": repr(err)}
-    return {"status": "lost", "frames": frames, "error": "closed without an end"}
-
-
-def _pedals(speed: float) -> tuple[float, float]:
-    """A driver who holds about `TARGET_SPEED_MPS` (pedals in steps of 0.25)."""
-    error = TARGET_SPEED_MPS - speed
-    throttle = round(min(max(error / 3.0, 0.0), 1.0) * 4) / 4
-    brake = round(min(max(-error / 6.0, 0.0), 1.0) * 4) / 4
-    return throttle, brake
 
 
 def run_load(
@@ -208,7 +122,7 @@ def run_load(
             base = f"http://127.0.0.1:{port}"
             _wait_for(server, base, folder / "server.log")
             started = time.perf_counter()
-            outcomes = asyncio.run(_all_rides(base, participants))
+            outcomes = ride_all(base, participants)
             wall = time.perf_counter() - started
         finally:
             server.terminate()
@@ -218,19 +132,13 @@ def run_load(
         return _figures(outcomes, database, wall)
 
 
-async def _all_rides(base: str, participants: int) -> list[dict[str, Any]]:
-    return list(
-        await asyncio.gather(*(scripted_ride(base) for _ in range(participants)))
-    )
-
-
 def _wait_for(server: subprocess.Popen, base: str, log: Path) -> None:
     deadline = time.monotonic() + START_TIMEOUT_S
     while time.monotonic() < deadline:
         if server.poll() is not None:
             raise RuntimeError(f"the server stopped: {log.read_text()}")
         try:
-            if _http("GET", f"{base}/api/study")[0] == 200:
+            if http_json("GET", f"{base}/api/study")[0] == 200:
                 return
         except OSError:
             time.sleep(0.2)
@@ -281,6 +189,29 @@ def _figures(
             "median": percentile(policy_steps, 50),
             "p99": percentile(policy_steps, 99),
         },
+        "latency_ms": latency_parts(
+            [x for o in outcomes for x in o.get("latency", [])]
+        ),
+    }
+
+
+def latency_parts(records: list[dict[str, float]]) -> dict[str, Any]:
+    """Median and p99 of each part of the input-to-frame latency (ms) over
+    the scripted riders' inputs, and how many there were."""
+    names = (*SERVER_PARTS, "websocket", "total")
+    return {
+        "inputs": len(records),
+        **{
+            name: {
+                "median": percentile(
+                    [r[name] for r in records if r[name] is not None], 50
+                ),
+                "p99": percentile(
+                    [r[name] for r in records if r[name] is not None], 99
+                ),
+            }
+            for name in names
+        },
     }
 
 
@@ -297,6 +228,12 @@ def format_figures(figures: dict[str, Any]) -> str:
         return f"{ms(median[name])} / {ms(p99[name])}"
 
     outcomes = ", ".join(r["status"] for r in figures["rides"])
+    latency = figures["latency_ms"]
+    parts = ", ".join(
+        f"{name} {ms(v['median'])} / {ms(v['p99'])}"
+        for name, v in latency.items()
+        if name != "inputs"
+    )
     return "\n".join(
         [
             f"{figures['participants']} scripted rides at once, "
@@ -307,6 +244,7 @@ def format_figures(figures: dict[str, Any]) -> str:
             f"policy {phase('policy_ms')}, frame {phase('frame_ms')}",
             f"  steps where the policy acted: median {ms(policy['median'])}, "
             f"p99 {ms(policy['p99'])}",
+            f"input to frame over {latency['inputs']} inputs, median / p99: {parts}",
             f"late steps: {figures['late_steps']}; frames not handed out: "
             f"{figures['frames_lost']}; rides dropped: {figures['rides_dropped']} "
             f"({outcomes})",

@@ -1,7 +1,10 @@
 """The study's results: the paper's Tables 5, 6 and 7, sign tests, telemetry.
 
-Each table counts the answers per option in the paper's order beside the
-paper's own counts. "80% preferred" is tested per question with an exact
+Only participants who completed the study count: both rides driven to the
+end (status 'arrived' or 'time_limit') and the three questions answered. The
+others are listed by how far they got (`participant_status`). Each table
+counts the completed participants' answers per option in the paper's order
+beside the paper's own counts. "80% preferred" is tested per question with an exact
 binomial (sign) test: answers favouring the 80% ride against those favouring
 the 20% ride, "no difference" / "cannot say" left out, under H0 p = 1/2.
 The one-sided p-value is P(X >= k) for k answers favouring 80% of n; the
@@ -33,10 +36,16 @@ from jaxround.study.questions import (
     ride_names,
 )
 from jaxround.study.settings import HIGH_SHARE, LOW_SHARE, share_label
-from jaxround.study.storage import StudyDatabase
+from jaxround.study.storage import COMPLETED, SURVEYED_RIDES, StudyDatabase
 
-#: Ride statuses that count in the telemetry.
-COMPLETED = ("arrived", "time_limit")
+#: How far a participant got, in the study's order (`participant_status`).
+STATUSES = (
+    "consent_only",
+    "practice_driven",
+    "first_ride_driven",
+    "both_rides_driven",
+    "completed",
+)
 #: Files `write_report` writes.
 REPORT_FILES = (
     "tables.md",
@@ -127,24 +136,70 @@ def telemetry(rides: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     return out
 
 
+def participant_status(
+    participant: dict[str, Any], rides: list[dict[str, Any]], answered: set[str]
+) -> str:
+    """How far a participant got, one of `STATUSES`.
+
+    Args:
+        participant: the ``participants`` row.
+        rides: the participant's ``rides`` rows.
+        answered: the questions they answered.
+    """
+    driven = {r["kind"] for r in rides if r["status"] in COMPLETED}
+    if all(kind in driven for kind in SURVEYED_RIDES):
+        done = participant["finished_utc"] is not None
+        if done and answered >= set(QUESTION_IDS):
+            return "completed"
+        return "both_rides_driven"
+    if "first" in driven:
+        return "first_ride_driven"
+    return "practice_driven" if "practice" in driven else "consent_only"
+
+
 def build_report(database: StudyDatabase) -> dict[str, Any]:
-    """The whole report as plain data (what ``/admin/report`` returns)."""
+    """The whole report as plain data (what ``/admin/report`` returns).
+
+    The tables count the answers of completed participants only; the others
+    are counted per status in ``by_status``.
+    """
     participants = database.rows("participants")
     answers = database.rows("answers")
+    rides = database.rows("rides")
+    status = {}
+    for p in participants:
+        pid = p["participant_id"]
+        status[pid] = participant_status(
+            p,
+            [r for r in rides if r["participant_id"] == pid],
+            {a["question"] for a in answers if a["participant_id"] == pid},
+        )
+    completed = [p for p in participants if status[p["participant_id"]] == "completed"]
+    counts = Counter(status.values())
     return {
         "participants": len(participants),
-        "finished": sum(p["finished_utc"] is not None for p in participants),
-        "blind": sum(bool(p["blind"]) for p in participants),
-        "orders": dict(Counter(p["ride_order"] for p in participants)),
-        "tables": answer_tables(answers),
-        "telemetry": telemetry(database.rows("rides")),
+        "completed": len(completed),
+        "by_status": {s: counts.get(s, 0) for s in STATUSES},
+        "blind": sum(bool(p["blind"]) for p in completed),
+        "orders": dict(Counter(p["ride_order"] for p in completed)),
+        "tables": answer_tables(
+            [a for a in answers if status[a["participant_id"]] == "completed"]
+        ),
+        "telemetry": telemetry(rides),
     }
 
 
 def tables_markdown(report: dict[str, Any]) -> str:
+    others = ", ".join(
+        f"{n} {status.replace('_', ' ')}"
+        for status, n in report["by_status"].items()
+        if status != "completed" and n
+    )
     lines = [
-        f"Participants: {report['participants']} ({report['finished']} "
-        f"finished the survey)."
+        f"Completed participants (both rides driven to the end, three answers): "
+        f"{report['completed']}; the tables count these only.",
+        f"Others, by how far they got: {others or 'none'} "
+        f"({report['participants']} participants in all).",
     ]
     for qid in QUESTION_IDS:
         t = report["tables"][qid]

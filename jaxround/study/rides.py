@@ -17,6 +17,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
+from jaxround.study.logs import log_event
 from jaxround.study.settings import StudySettings
 from jaxround.study.sim import RideSpec
 from jaxround.study.storage import StudyDatabase, utc_now
@@ -54,6 +55,7 @@ class Ride:
     delays_ms: dict[int, float] = field(default_factory=dict)
     latency: list[dict[str, float]] = field(default_factory=list)
     frames_dropped: int = 0
+    requested_at: float = field(default_factory=time.monotonic)
     done: asyncio.Event = field(default_factory=asyncio.Event)
 
     @property
@@ -123,7 +125,19 @@ class RideManager:
             raise
         child.close()
         asyncio.get_running_loop().add_reader(parent.fileno(), self._on_message, ride)
+        self.log(ride, "ride_requested", share=spec.share)
         return ride
+
+    @staticmethod
+    def log(ride: Ride, event: str, **fields: Any) -> None:
+        """A log line of this ride (`jaxround.study.logs`)."""
+        log_event(
+            event,
+            participant=ride.participant_id,
+            ride=ride.ride_id,
+            kind=ride.kind,
+            **fields,
+        )
 
     @staticmethod
     def _blocking(ride: Ride) -> None:
@@ -155,8 +169,16 @@ class RideManager:
                 ride.queue.get_nowait()
                 ride.frames_dropped += 1
             ride.queue.put_nowait(("frame", (t0, step, body[FRAME_HEADER.size :])))
+        elif tag == b"T":
+            ride.queue.put_nowait(("timing", json.loads(body)))
+        elif tag == b"S":
+            self.log(ride, "ride_priority", **json.loads(body))
+        elif tag == b"P":
+            ride.queue.put_nowait(("preparing", json.loads(body)))
         elif tag == b"R":
             ride.queue.put_nowait(("ready", json.loads(body)))
+            waited = time.monotonic() - ride.requested_at
+            self.log(ride, "ride_ready", warmup_wall_s=round(waited, 1))
         elif tag == b"E":
             self._unwatch(ride)
             self._spawn(self._finish(ride, json.loads(body), None))
@@ -191,6 +213,7 @@ class RideManager:
         row = record["ride"]
         if ride.stop_reason is not None and row["status"] in ("abandoned", "error"):
             row["status"] = ride.stop_reason
+        row["passes"] = record.get("passes", 0)
         row.update(
             participant_id=ride.participant_id,
             kind=ride.kind,
@@ -207,10 +230,22 @@ class RideManager:
             )
         )
         record["latency"] = ride.latency
+        self.log(
+            ride,
+            "ride_ended",
+            status=row["status"],
+            error=row.get("error"),
+            steps=row.get("steps"),
+            passes=row["passes"],
+            crossing_time_s=row.get("crossing_time_s"),
+            delay_p99_ms=_rounded(row.get("delay_p99_ms")),
+        )
+        summary = _summary(row)
+        del row["passes"]  # not a column: the log line and the page have it
         try:
             await asyncio.to_thread(self.database.save_ride, record)
         finally:
-            ride.queue.put_nowait(("end", _summary(row)))
+            ride.queue.put_nowait(("end", summary))
             await self._reap(ride)
             self.rides.pop(ride.ride_id, None)
             ride.done.set()
@@ -264,11 +299,16 @@ class RideManager:
         )
 
 
+def _rounded(x: float | None) -> float | None:
+    return None if x is None else round(x, 2)
+
+
 def _summary(row: dict[str, Any]) -> dict[str, Any]:
     """What the browser shows at a ride's end."""
     keys = (
         "status",
         "error",
+        "passes",
         "crossing_time_s",
         "collisions",
         "hard_brakings",

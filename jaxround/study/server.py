@@ -17,46 +17,47 @@ refuse unknown fields; WebSocket messages by `jaxround.study.protocol`.
 from __future__ import annotations
 
 import asyncio
-import collections
 import contextlib
 import csv
 import io
 import secrets
-import time
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Annotated, Literal
 
 from fastapi import Depends, FastAPI, HTTPException, Query, Request, WebSocket
 from fastapi import Path as PathParam
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse, PlainTextResponse
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, ConfigDict, Field
-from starlette.websockets import WebSocketDisconnect
 
 from jaxround.scenario.config import load_config
+from jaxround.study.limits import BodyLimit, validation_error
+from jaxround.study.logs import AccessLog, log_event
 from jaxround.study.pedals import read_pedal_map
-from jaxround.study.protocol import MAX_MESSAGES_PER_S, BadMessageError, parse_message
 from jaxround.study.questions import ORDERS, QUESTION_IDS, ride_label, worded_questions
-from jaxround.study.rides import BusyError, Ride, RideManager
+from jaxround.study.relay import CLOSE_TAKEN, CLOSE_UNKNOWN, refuse, relay
+from jaxround.study.rides import BusyError, RideManager
 from jaxround.study.roads import scenario_roads
 from jaxround.study.settings import StudySettings, leg_index
 from jaxround.study.sim import RideSpec
 from jaxround.study.storage import (
     COLUMNS,
     AnswerExistsError,
+    NotYetError,
     StudyDatabase,
     UnknownParticipantError,
 )
 
 STATIC = Path(__file__).parent / "static"
 ParticipantId = Annotated[str, PathParam(pattern=r"^[A-Za-z0-9_-]{8,64}$")]
-#: WebSocket close codes: refused by the protocol, unknown ride, ride taken.
-CLOSE_POLICY, CLOSE_UNKNOWN, CLOSE_TAKEN = 1008, 4404, 4409
 
 
 class Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    """A request body: no unknown fields, no conversions ("2" is not 2)."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
 
 
 class Consent(Strict):
@@ -104,6 +105,9 @@ def create_app(
     )
     app.state.manager = manager
     app.state.database = database
+    app.add_exception_handler(RequestValidationError, validation_error)
+    app.add_middleware(BodyLimit)
+    app.add_middleware(AccessLog)  # outermost: sees the 413s too
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
 
     def participant(participant_id: str) -> dict:
@@ -131,6 +135,9 @@ def create_app(
             "places_free": manager.places_free,
             "ride_s": settings.ride_s,
             "practice_s": settings.practice_s,
+            "passes": settings.passes,
+            "practice_passes": settings.practice_passes,
+            "estimate_min": settings.estimated_minutes(),
             "step_s": settings.step_s,
             "pedal_map": pedal_map,
         }
@@ -142,6 +149,7 @@ def create_app(
     @app.post("/api/participants", status_code=201)
     def add_participant(body: Consent) -> dict:
         participant_id, order = database.add_participant(settings.blind)
+        log_event("participant_added", participant=participant_id, order=order)
         shares = ORDERS[order]
         return {
             "participant_id": participant_id,
@@ -160,6 +168,7 @@ def create_app(
             )
         except UnknownParticipantError:
             raise HTTPException(404, "no participant has this id") from None
+        log_event("demographics_stored", participant=participant_id)
         return {"stored": True}
 
     @app.post("/api/participants/{participant_id}/answers", status_code=201)
@@ -168,8 +177,10 @@ def create_app(
             database.add_answer(participant_id, body.question, body.option)
         except UnknownParticipantError:
             raise HTTPException(404, "no participant has this id") from None
-        except AnswerExistsError as err:
+        except (AnswerExistsError, NotYetError) as err:
+            log_event("answer_refused", participant=participant_id, reason=str(err))
             raise HTTPException(409, str(err)) from None
+        log_event("answer_stored", participant=participant_id, question=body.question)
         return {"stored": True}
 
     @app.post("/api/participants/{participant_id}/finish")
@@ -178,23 +189,30 @@ def create_app(
             database.finish(participant_id)
         except UnknownParticipantError:
             raise HTTPException(404, "no participant has this id") from None
+        except NotYetError as err:
+            raise HTTPException(409, str(err)) from None
+        log_event("participant_finished", participant=participant_id)
         return {"stored": True}
 
     @app.post("/api/rides", status_code=201)
     async def start_ride(body: RideRequest) -> JSONResponse:
         who = await asyncio.to_thread(participant, body.participant_id)
         if body.kind == "practice":
-            share, label, ride_s, warmup_s = (
-                None,
-                "practice ride",
+            share, label = None, "practice ride"
+            ride_s, warmup_s, passes = (
                 settings.practice_s,
                 0.0,
+                settings.practice_passes,
             )
         else:
             position = 0 if body.kind == "first" else 1
             share = ORDERS[who["ride_order"]][position]
             label = ride_label(share, position, bool(who["blind"]))
-            ride_s, warmup_s = settings.ride_s, settings.warmup_s
+            ride_s, warmup_s, passes = (
+                settings.ride_s,
+                settings.warmup_s,
+                settings.passes,
+            )
         spec = RideSpec(
             ride_id=secrets.token_urlsafe(12),
             config=settings.config,
@@ -206,10 +224,13 @@ def create_app(
             step_s=settings.step_s,
             ego_origin=origin,
             ego_destination=destination,
+            passes=passes,
         )
         try:
             ride = await manager.start(spec, body.participant_id, body.kind, label)
         except BusyError as err:
+            log_event("ride_refused_busy", participant=body.participant_id,
+                      kind=body.kind)  # fmt: skip
             return JSONResponse({"busy": True, "detail": str(err)}, status_code=503)
         return JSONResponse(
             {
@@ -217,6 +238,7 @@ def create_app(
                 "token": ride.token,
                 "label": label,
                 "ride_s": ride_s,
+                "passes": passes,
             },
             status_code=201,
         )
@@ -226,10 +248,10 @@ def create_app(
         await websocket.accept()
         ride = manager.rides.get(ride_id)
         if ride is None or not secrets.compare_digest(token, ride.token):
-            await _refuse(websocket, CLOSE_UNKNOWN, "no ride with this id and token")
+            await refuse(websocket, CLOSE_UNKNOWN, "no ride with this id and token")
             return
         if ride.connected:
-            await _refuse(
+            await refuse(
                 websocket, CLOSE_TAKEN, "this ride is open in another window already"
             )
             return
@@ -255,95 +277,3 @@ def create_app(
         return PlainTextResponse(buffer.getvalue(), media_type="text/csv")
 
     return app
-
-
-async def relay(websocket: WebSocket, manager: RideManager, ride: Ride) -> None:
-    """Frames to the browser, checked pedals to the ride, until either ends.
-
-    The ride's end closes the socket; a browser that leaves, breaks the
-    protocol or can no longer be written to ends the ride (`RideManager.stop`).
-    """
-    to_browser = asyncio.create_task(_frames_out(websocket, manager, ride))
-    from_browser = asyncio.create_task(_messages_in(websocket, manager, ride))
-    done, _ = await asyncio.wait(
-        {to_browser, from_browser}, return_when=asyncio.FIRST_COMPLETED
-    )
-    from_browser.cancel()
-    if to_browser in done and to_browser.exception() is None:  # told of the end
-        with contextlib.suppress(Exception):
-            await websocket.close(1000, "ride over")
-        return
-    to_browser.cancel()
-    reason = "abandoned"
-    if from_browser in done and from_browser.exception() is None:
-        reason = from_browser.result()
-    await manager.stop(ride, reason)
-
-
-async def _frames_out(websocket: WebSocket, manager: RideManager, ride: Ride) -> None:
-    while True:
-        kind, item = await ride.queue.get()
-        if kind == "frame":
-            t0_ns, step, body = item
-            await websocket.send_text(body.decode())
-            manager.frame_sent(ride, t0_ns, step)
-        elif kind == "ready":
-            await websocket.send_json(
-                {
-                    "type": "ready",
-                    "label": ride.label,
-                    "ride_s": ride.spec.ride_s,
-                    **item,
-                }
-            )
-        elif kind == "end":
-            await websocket.send_json({"type": "end", **item})
-            return
-
-
-async def _messages_in(
-    websocket: WebSocket, manager: RideManager, ride: Ride
-) -> str | None:
-    """Read the browser until it leaves ('abandoned') or errs ('bad_message').
-
-    Pedals and latencies count only after the start; a browser that sends
-    more than `MAX_MESSAGES_PER_S` in a second breaks the protocol.
-    """
-    recent: collections.deque[float] = collections.deque()
-    while True:
-        try:
-            message = await websocket.receive()
-        except (WebSocketDisconnect, RuntimeError):
-            return "abandoned"
-        if message["type"] == "websocket.disconnect":
-            return "abandoned" if message.get("code") != 1009 else "bad_message"
-        now = time.monotonic()
-        recent.append(now)
-        while recent[0] < now - 1.0:
-            recent.popleft()
-        text = message.get("text")
-        try:
-            if len(recent) > MAX_MESSAGES_PER_S:
-                raise BadMessageError(
-                    f"more than {MAX_MESSAGES_PER_S} messages a second"
-                )
-            if text is None:
-                raise BadMessageError("binary messages are not part of the protocol")
-            checked = parse_message(text)
-        except BadMessageError as err:
-            with contextlib.suppress(Exception):
-                await websocket.send_json({"type": "error", "message": str(err)})
-                await websocket.close(CLOSE_POLICY, "bad message")
-            return "bad_message"
-        if checked["type"] == "start" and not ride.started:
-            ride.started = True
-            manager.send(ride, checked)
-        elif checked["type"] == "input" and ride.started:
-            manager.send(ride, checked)
-        elif checked["type"] == "latency" and ride.started:
-            manager.add_latency(ride, checked["seq"], float(checked["ms"]))
-
-
-async def _refuse(websocket: WebSocket, code: int, reason: str) -> None:
-    await websocket.send_json({"type": "error", "message": reason})
-    await websocket.close(code, reason)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,6 +20,13 @@ MAX_STEP_S = 0.1
 #: Shortest wait for the browser's start: the page counts down 2 s between
 #: the ride's "ready" and its "start".
 MIN_CONNECT_TIMEOUT_S = 3.0
+#: Most passes through the roundabout in one ride.
+MAX_PASSES = 50
+#: What the consent page's estimate adds to the rides' time limits: the
+#: pages and the three questions, and each ride's warm-up as a participant
+#: waits for it (12-27 s measured with 120 s of warm-up on a 2-core CPU).
+FORMS_S = 180.0
+WARMUP_WAIT_S = 30.0
 
 
 @dataclass(frozen=True)
@@ -33,8 +41,13 @@ class StudySettings:
         warmup_s: simulated seconds of background traffic before the ego
             enters, run as fast as SUMO goes (the roundabout is busy then).
         ride_s: longest ride in seconds of driving; it ends earlier when the
-            ego leaves the network.
+            ego has driven its passes.
+        passes: times the ego drives its route in a ride (in, round the
+            ring, out; then in again from its entry among the same
+            traffic). Eight passes take about 70 s with the throttle held
+            (8.8 s each), more driving at lower speeds.
         practice_s: longest practice ride (no traffic), seconds.
+        practice_passes: passes of the practice ride.
         step_s: SUMO's step in a ride, seconds of real time; the policy acts
             every ``dt_s / step_s`` steps (its trained step).
         blind: label the rides A and B instead of naming their AV shares.
@@ -56,8 +69,10 @@ class StudySettings:
     config: str = "milan"
     max_participants: int = 4
     warmup_s: float = 120.0
-    ride_s: float = 120.0
+    ride_s: float = 180.0
+    passes: int = 8
     practice_s: float = 90.0
+    practice_passes: int = 2
     step_s: float = 0.1
     blind: bool = False
     seed: int | None = None
@@ -87,6 +102,11 @@ class StudySettings:
         for name in ("ride_s", "practice_s"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name}: {getattr(self, name)}, expected > 0")
+        for name in ("passes", "practice_passes"):
+            if not 1 <= getattr(self, name) <= MAX_PASSES:
+                raise ValueError(
+                    f"{name}: {getattr(self, name)}, expected 1-{MAX_PASSES}"
+                )
         if self.connect_timeout_s < MIN_CONNECT_TIMEOUT_S:
             raise ValueError(
                 f"connect timeout: {self.connect_timeout_s} s, expected at least "
@@ -109,6 +129,12 @@ class StudySettings:
                 f"the ego enters and leaves at leg {self.ego_origin!r}: choose "
                 "another exit"
             )
+
+    def estimated_minutes(self) -> int:
+        """What the consent page promises: the study at most takes about
+        this long (the rides' time limits, their warm-ups, the forms)."""
+        rides = self.practice_s + 2 * (self.ride_s + WARMUP_WAIT_S)
+        return math.ceil((rides + FORMS_S) / 60.0)
 
     def schedule_seed(self, cfg: ScenarioConfig) -> int:
         return cfg.simulation.seed if self.seed is None else self.seed

@@ -13,6 +13,12 @@ step length, `sumo_export.scenario.action_step`), and the policy acts every
 ``dt_s / step_s`` steps through `sumo_export.controller.PolicyController`,
 as it was trained.
 
+A ride is a number of passes (``passes``): each time the ego leaves the
+network it is sent in again from its entry on the same route, under the
+same id, among the traffic that went on meanwhile (SUMO's ``vehicle.add``),
+so the AVs' observer keeps seeing it as the same human driver. The ride
+ends after the last pass or at its time limit.
+
 The participant drives the ego's longitudinal motion only: the pedals set an
 acceleration, its integral is commanded with ``vehicle.setSpeed`` and the ego
 follows its lanes (no steering). Its speed mode is 32: all of SUMO's checks
@@ -28,8 +34,8 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import json
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -39,7 +45,7 @@ import numpy as np
 from jaxround.scenario.config import ScenarioConfig, load_config
 from jaxround.scenario.edges import route_edges
 from jaxround.scenario.schedule import Schedule, make_schedule
-from sumo_export.scenario import vehicle_id, write_scenario
+from sumo_export.scenario import HV_TYPE, route_id, vehicle_id, write_scenario
 
 #: Ego acceleration at full throttle and deceleration at full brake, m/s^2.
 EGO_ACCEL_MPS2 = 3.0
@@ -51,6 +57,8 @@ EGO_MAX_SPEED_MPS = 20.0
 EGO_SPEED_FACTOR = 0.6
 #: SUMO speed mode of the ego: every check off, junction right of way too.
 EGO_SPEED_MODE = 32
+#: Simulated seconds of warm-up between two progress reports.
+PROGRESS_EVERY_S = 5.0
 #: How far ahead the vehicle ahead is looked for, m.
 LEADER_LOOKAHEAD_M = 100.0
 
@@ -71,6 +79,7 @@ class RideSpec:
         step_s: SUMO's step, s.
         ego_origin: leg index the ego enters from.
         ego_destination: leg index it leaves at.
+        passes: times the ego drives its route (each a crossing).
     """
 
     ride_id: str
@@ -83,6 +92,7 @@ class RideSpec:
     step_s: float
     ego_origin: int
     ego_destination: int
+    passes: int = 1
 
 
 def ride_schedule(
@@ -154,7 +164,9 @@ class RideSimulation:
     Attributes:
         trace: one dict per ride step (``ride_steps`` columns without timings).
         events: collisions, as ``ride_events`` rows.
-        ego_entered_s, ego_arrived_s: simulated times, None until they happen.
+        ego_entered_s, ego_arrived_s: simulated times of the first entry and
+            of the last pass's exit, None until they happen.
+        crossings: crossing time of each pass done (entry to exit), s.
     """
 
     def __init__(self, spec: RideSpec, workdir: Path) -> None:
@@ -184,6 +196,9 @@ class RideSimulation:
         self.time_s = 0.0
         self.ego_entered_s: float | None = None
         self.ego_arrived_s: float | None = None
+        self.ego_in_network = False
+        self.pass_entered_s: float | None = None
+        self.crossings: list[float] = []
         self.ego_speed = 0.0
         self.ego_pose: tuple[float, float, float] | None = None
         self.vehicle_ids: tuple[str, ...] = ()
@@ -193,23 +208,40 @@ class RideSimulation:
 
     @property
     def ego_on_road(self) -> bool:
-        return self.ego_entered_s is not None and self.ego_arrived_s is None
+        return self.ego_in_network
 
-    def warm_up(self) -> None:
-        """Step as fast as SUMO goes to just before the ego's departure."""
+    @property
+    def current_pass(self) -> int:
+        """The pass being driven (or waited for), 1 to ``spec.passes``."""
+        return min(len(self.crossings) + 1, self.spec.passes)
+
+    def warm_up(self, on_progress: Callable[[float], None] | None = None) -> None:
+        """Step as fast as SUMO goes to just before the ego's departure.
+
+        Args:
+            on_progress: called with the share done (0-1) every
+                `PROGRESS_EVERY_S` simulated seconds.
+        """
         last = self.spec.warmup_s - self.spec.step_s + 1e-6
+        every = max(1, round(PROGRESS_EVERY_S / self.spec.step_s))
         while self.time_s + self.spec.step_s <= last:
             self._advance()
+            self.act()
+            if on_progress is not None and self.steps % every == 0:
+                on_progress(min(self.time_s / max(last, 1e-9), 1.0))
 
-    def step(self, throttle: float, brake: float) -> tuple[int, int]:
-        """One real-time step: command the ego, step SUMO, let the policy act.
+    def step(self, throttle: float, brake: float) -> int:
+        """One real-time step: command the ego, step SUMO, read the ego.
+
+        The policy acts afterwards (`act`), once the step's frame is out:
+        its commands take effect in the next step either way.
 
         Args:
             throttle: pedal position in [0, 1].
             brake: pedal position in [0, 1].
 
         Returns:
-            (SUMO ns, policy ns): time in the SUMO step and in the controller.
+            the time in SUMO's step, ns.
         """
         if self.ego_on_road:
             accel = ego_acceleration(throttle, brake)
@@ -217,19 +249,25 @@ class RideSimulation:
                 max(self.ego_speed + accel * self.spec.step_s, 0.0), EGO_MAX_SPEED_MPS
             )
             self.libsumo.vehicle.setSpeed(self.ego_id, speed)
-        sumo_ns, policy_ns = self._advance()
+        sumo_ns = self._advance()
         self._read_ego(throttle, brake)
-        return sumo_ns, policy_ns
+        return sumo_ns
 
-    def _advance(self) -> tuple[int, int]:
+    def act(self) -> int:
+        """Let the policy act on the state after the last step, when it is
+        its turn (every ``dt_s / step_s`` steps); returns its time, ns."""
+        if self.controller is None or self.steps % self.policy_every != 0:
+            return 0
+        t0 = time.perf_counter_ns()
+        self.controller(self.libsumo, self.time_s)
+        return time.perf_counter_ns() - t0
+
+    def _advance(self) -> int:
         t0 = time.perf_counter_ns()
         self.libsumo.simulation.step()
         self.steps += 1
         self.time_s = self.libsumo.simulation.getTime()
-        t1 = time.perf_counter_ns()
-        if self.controller is not None and self.steps % self.policy_every == 0:
-            self.controller(self.libsumo, self.time_s)
-        return t1 - t0, time.perf_counter_ns() - t1
+        return time.perf_counter_ns() - t0
 
     def _read_ego(self, throttle: float, brake: float) -> None:
         veh = self.libsumo.vehicle
@@ -240,9 +278,12 @@ class RideSimulation:
             "throttle": throttle,
             "brake": brake,
         }
-        if self.ego_id in self.vehicle_ids:
-            if self.ego_entered_s is None:
-                self.ego_entered_s = self.time_s
+        self.ego_in_network = self.ego_id in self.vehicle_ids
+        if self.ego_in_network:
+            if self.pass_entered_s is None:
+                self.pass_entered_s = self.time_s
+                if self.ego_entered_s is None:
+                    self.ego_entered_s = self.time_s
                 veh.setSpeedMode(self.ego_id, EGO_SPEED_MODE)
             x, y = veh.getPosition(self.ego_id)
             self.ego_pose = (x, y, veh.getAngle(self.ego_id))
@@ -256,10 +297,28 @@ class RideSimulation:
             )
             row.update(self._gap_to_leader())
             self._record_collisions()
-        elif self.ego_entered_s is not None and self.ego_arrived_s is None:
-            self.ego_arrived_s = self.time_s
+        elif self.pass_entered_s is not None and self._ego_arrived():  # it left
+            self.crossings.append(round(self.time_s - self.pass_entered_s, 3))
+            self.pass_entered_s = None
             self.ego_pose = None
+            if len(self.crossings) < self.spec.passes:
+                self._send_ego_again()
+            else:
+                self.ego_arrived_s = self.time_s
         self.trace.append(row)
+
+    def _ego_arrived(self) -> bool:
+        """The ego left the network in this step (not a teleport, after which
+        it comes back under its id)."""
+        return self.ego_id in self.libsumo.simulation.getArrivedIDList()
+
+    def _send_ego_again(self) -> None:
+        """The next pass: the ego from its entry again, as it first departed."""
+        veh = self.libsumo.vehicle
+        route = route_id(self.spec.ego_origin, self.spec.ego_destination)
+        veh.add(self.ego_id, route, typeID=HV_TYPE, depart="now", departLane="first",
+                departPos="base", departSpeed="max")  # fmt: skip
+        veh.setSpeedFactor(self.ego_id, EGO_SPEED_FACTOR)
 
     def _gap_to_leader(self) -> dict[str, float | None]:
         """Bumper gap to the vehicle ahead and the time to collide with it."""
@@ -304,40 +363,6 @@ class RideSimulation:
     def collisions(self) -> int:
         return sum(e["kind"] == "collision" for e in self.events)
 
-    def frame(self, step: int, input_seq: int) -> dict[str, Any]:
-        """What the browser draws after this step (plain data).
-
-        ``cars``: flat [number, x, y, angle, ...] of the other vehicles
-        (SUMO's front-bumper position, m, and heading, degrees clockwise from
-        north); ``ego``: [x, y, angle, speed] or None before it enters and
-        after it leaves. Nothing tells an AV from a human driver.
-        """
-        veh = self.libsumo.vehicle
-        cars: list[float] = []
-        for vid in self.vehicle_ids:
-            if vid == self.ego_id:
-                continue
-            x, y = veh.getPosition(vid)
-            cars += (
-                int(vid[1:]),
-                round(x, 2),
-                round(y, 2),
-                round(veh.getAngle(vid), 1),
-            )
-        ego = None
-        if self.ego_pose is not None:
-            x, y, angle = self.ego_pose
-            ego = [round(x, 2), round(y, 2), round(angle, 1), round(self.ego_speed, 2)]
-        return {
-            "type": "frame",
-            "step": step,
-            "t": round(self.time_s, 2),
-            "seq": input_seq,
-            "ego": ego,
-            "cars": cars,
-            "collisions": self.collisions,
-        }
-
     def ego_lanes(self) -> list[str]:
         """The lanes of the ego's route (its roads have one lane each)."""
         return [f"{edge}_0" for edge in self.route]
@@ -345,8 +370,3 @@ class RideSimulation:
     def close(self) -> None:
         with contextlib.suppress(Exception):  # a simulation that failed to start
             self.libsumo.close()
-
-
-def frame_bytes(frame: dict[str, Any]) -> bytes:
-    """A frame as compact JSON."""
-    return json.dumps(frame, separators=(",", ":"), allow_nan=False).encode()

@@ -109,8 +109,20 @@ CREATE TABLE browser_latency (
 """
 
 
+#: Ride statuses of a ride that ran its course (the ego left the network or
+#: the ride reached its time limit): the rides whose participants may answer.
+COMPLETED = ("arrived", "time_limit")
+#: The rides a participant drives before the questions.
+SURVEYED_RIDES = ("first", "second")
+
+
 class AnswerExistsError(ValueError):
     """The participant has answered this question already."""
+
+
+class NotYetError(ValueError):
+    """A step of the study asked for before the steps it needs (the text says
+    which are missing)."""
 
 
 class UnknownParticipantError(KeyError):
@@ -226,6 +238,7 @@ class StudyDatabase:
         Raises:
             UnknownParticipantError: no such participant.
             AnswerExistsError: this question was answered before (kept as it was).
+            NotYetError: the participant has not driven both rides to the end.
             ValueError: an unknown question or option.
         """
         if question not in QUESTION_IDS:
@@ -237,6 +250,14 @@ class StudyDatabase:
             ).fetchone()
             if row is None:
                 raise UnknownParticipantError(participant_id)
+            missing = _rides_not_completed(conn, participant_id)
+            if missing:
+                raise NotYetError(
+                    "the questions come after both rides: "
+                    + " and ".join(f"the {kind} ride" for kind in missing)
+                    + (" has" if len(missing) == 1 else " have")
+                    + " not been driven to the end"
+                )
             option = paper_option(option_shown, row[0], bool(row[1]))
             try:
                 conn.execute(
@@ -250,13 +271,29 @@ class StudyDatabase:
         return option
 
     def finish(self, participant_id: str) -> None:
+        """Mark the survey done.
+
+        Raises:
+            UnknownParticipantError: no such participant.
+            NotYetError: a question is not answered yet.
+        """
         with self._connect() as conn, _transaction(conn):
+            answered = {
+                r[0]
+                for r in conn.execute(
+                    "SELECT question FROM answers WHERE participant_id = ?",
+                    (participant_id,),
+                )
+            }
             done = conn.execute(
                 "UPDATE participants SET finished_utc = ? WHERE participant_id = ?",
                 (utc_now(), participant_id),
             )
             if done.rowcount == 0:
                 raise UnknownParticipantError(participant_id)
+            missing = [q for q in QUESTION_IDS if q not in answered]
+            if missing:  # rolled back with the update
+                raise NotYetError(f"questions not answered yet: {missing}")
 
     # ------------------------------------------------------------ rides
 
@@ -306,6 +343,19 @@ class StudyDatabase:
                 writer.writerows(self.rows(table))
             paths.append(path)
         return paths
+
+
+def _rides_not_completed(conn: sqlite3.Connection, participant_id: str) -> list[str]:
+    """Which of `SURVEYED_RIDES` the participant has not driven to the end."""
+    marks = ", ".join("?" for _ in COMPLETED)
+    done = {
+        r[0]
+        for r in conn.execute(
+            f"SELECT kind FROM rides WHERE participant_id = ? AND status IN ({marks})",
+            (participant_id, *COMPLETED),
+        )
+    }
+    return [kind for kind in SURVEYED_RIDES if kind not in done]
 
 
 def export_names() -> list[str]:

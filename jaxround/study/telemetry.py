@@ -49,7 +49,7 @@ def summarize(
     trace: Sequence[dict[str, Any]],
     events: Sequence[dict[str, Any]],
     entered_s: float | None,
-    arrived_s: float | None,
+    crossings: Sequence[float],
     late_steps: int,
 ) -> dict[str, Any]:
     """The ``rides`` columns that a ride process computes.
@@ -57,12 +57,13 @@ def summarize(
     Args:
         trace: one row per step (``ride_steps`` columns, timings included).
         events: its collision and hard-braking events.
-        entered_s: simulated time the ego entered (None: it never did).
-        arrived_s: simulated time it left the network (None: it did not).
+        entered_s: simulated time the ego first entered (None: it never did).
+        crossings: crossing time of each pass it finished (entry to exit), s.
         late_steps: steps that started more than a step late.
 
     Returns:
-        steps, ego_entered_s, crossing_time_s, min_gap_m, min_ttc_s,
+        steps, ego_entered_s, crossing_time_s (the mean over the passes
+        finished), min_gap_m, min_ttc_s,
         hard_brakings, collisions, late_steps, compute_median_ms,
         compute_p99_ms.
     """
@@ -71,9 +72,7 @@ def summarize(
         for r in trace
         if r.get("frame_ms") is not None
     ]
-    crossing = None
-    if entered_s is not None and arrived_s is not None:
-        crossing = round(arrived_s - entered_s, 3)
+    crossing = round(float(np.mean(crossings)), 3) if len(crossings) else None
     return {
         "steps": len(trace),
         "ego_entered_s": entered_s,

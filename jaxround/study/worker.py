@@ -2,21 +2,32 @@
 
 It talks to the server over a `multiprocessing` pipe, in bytes:
 
-- to the server: ``R`` + JSON when the warm-up is done (the ego's lanes);
-  ``F`` + the step's start (``perf_counter_ns``, 8 bytes, big-endian) +
-  the step number (4 bytes) + the frame's JSON, once per step; ``E`` + JSON,
-  the ride's record for `jaxround.study.storage.StudyDatabase.save_ride`,
-  last;
+- to the server: ``P`` + JSON ``{"done": share}`` during the warm-up; ``R``
+  + JSON when the warm-up is done (the ego's lanes); ``F`` + the step's
+  start (``perf_counter_ns``, 8 bytes, big-endian) + the step number (4
+  bytes) + the frame's JSON, once per step; ``T`` + JSON after the frame of
+  a step that applied a new input: where that input's time went in this
+  process (`input_timing`); ``S`` + JSON ``{"priority"}`` when driving
+  starts (what `jaxround.study.priority` got); ``E`` + JSON, the ride's record for
+  `jaxround.study.storage.StudyDatabase.save_ride`, last;
 - from the server: JSON ``{"type": "start"}``, ``{"type": "input", "seq",
-  "throttle", "brake"}`` (checked by the server) and ``{"type": "stop",
-  "reason"}``.
+  "throttle", "brake", "rx_ns"}`` (checked by the server, which adds when it
+  received it) and ``{"type": "stop", "reason"}``.
 
-A step is: the latest pedals, SUMO's step (and the policy's every
-``dt_s / step_s`` steps), the frame sent. Steps start on a fixed real-time
-grid; a step that starts more than a step late moves the grid and is counted
-in ``late_steps``. The ride ends when the ego leaves the network, at its time
-limit, when the server says stop, or when the server is gone (the pipe
-closes), and the process then exits.
+A step is: the latest pedals, SUMO's step, the frame sent, then the
+policy's turn every ``dt_s / step_s`` steps (its commands take effect in the
+next step, so it need not delay the frame). Steps start on a fixed
+real-time grid; a step that starts more than a step late moves the grid and
+is counted in ``late_steps``. A pedal pressed or released (from 0 or to 0)
+starts the next step at once instead of at its time on the grid, or, when
+that step was started early already, as soon as the one after it is due
+within a step: the grid stays, so the simulated time never runs more than
+one step ahead of the wall clock, and a press does not wait for the grid's
+next step (up to 0.1 s, 50 ms on average). Once the warm-up is over the
+process asks for a higher scheduling priority (`jaxround.study.priority`).
+The ride ends after the ego's last pass, at its time limit, when the server
+says stop, or when the server is gone (the pipe closes), and the process
+then exits.
 """
 
 from __future__ import annotations
@@ -30,12 +41,16 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
-from jaxround.study.sim import RideSimulation, RideSpec, frame_bytes
+from jaxround.study.frames import frame_bytes, ride_frame
+from jaxround.study.priority import RIDE_RT_PRIORITY, raise_priority
+from jaxround.study.sim import RideSimulation, RideSpec
 from jaxround.study.storage import utc_now
 from jaxround.study.telemetry import hard_brakings, summarize
 
 #: Header of a frame message: step start (ns) and step number.
 FRAME_HEADER = struct.Struct(">qI")
+#: What `_wait_until` returns when a pedal press should start the step now.
+PULL_STEP = "pull"
 
 
 class ServerGoneError(Exception):
@@ -53,7 +68,11 @@ def ride_process(conn: Connection, spec: RideSpec, connect_timeout_s: float) -> 
                 if spec.share is not None:
                     _prepare_jax()
                 sim = RideSimulation(spec, Path(tmp))
-                sim.warm_up()
+                sim.warm_up(
+                    lambda done: conn.send_bytes(
+                        b"P" + json.dumps({"done": round(done, 3)}).encode()
+                    )
+                )
             except Exception as err:  # a ride that cannot start says why
                 record["error"] = f"the ride could not start: {err!r}"
             else:
@@ -98,23 +117,31 @@ def drive(
                 "error": None,
                 "late_steps": 0,
             }
-    pedals = {"throttle": 0.0, "brake": 0.0, "seq": -1}
+    priority = raise_priority(RIDE_RT_PRIORITY)
+    conn.send_bytes(b"S" + json.dumps({"priority": priority}).encode())
+    pedals: dict[str, Any] = {"throttle": 0.0, "brake": 0.0, "seq": -1}
     period_ns = round(spec.step_s * 1e9)
     n_steps = round(spec.ride_s / spec.step_s)
     late = 0
+    applied_seq = -1
     next_ns = time.perf_counter_ns()
     for step in range(n_steps):
-        stop = _wait_until(conn, next_ns, pedals)
-        if stop is not None:
+        stop = _wait_until(conn, next_ns, pedals, period_ns)
+        if stop not in (None, PULL_STEP):
             return {"status": stop, "error": None, "late_steps": late}
         t0 = time.perf_counter_ns()
         if t0 - next_ns > period_ns:
             late += 1
             next_ns = t0
-        sumo_ns, policy_ns = sim.step(pedals["throttle"], pedals["brake"])
-        frame = frame_bytes(sim.frame(step, pedals["seq"]))
+        sumo_ns = sim.step(pedals["throttle"], pedals["brake"])
+        frame = frame_bytes(ride_frame(sim, step, pedals["seq"]))
         conn.send_bytes(b"F" + FRAME_HEADER.pack(t0, step) + frame)
-        frame_ns = time.perf_counter_ns() - t0 - sumo_ns - policy_ns
+        frame_ns = time.perf_counter_ns() - t0 - sumo_ns
+        if pedals["seq"] != applied_seq:
+            applied_seq = pedals["seq"]
+            timing = input_timing(pedals, step, t0, sumo_ns, frame_ns)
+            conn.send_bytes(b"T" + json.dumps(timing).encode())
+        policy_ns = sim.act()  # off the frame's path: it acts on the next step
         sim.trace[-1].update(
             step=step,
             sumo_ms=sumo_ns / 1e6,
@@ -127,19 +154,59 @@ def drive(
     return {"status": "time_limit", "error": None, "late_steps": late}
 
 
-def _wait_until(conn: Connection, until_ns: int, pedals: dict[str, Any]) -> str | None:
-    """Take the server's messages until `until_ns`; a stop's reason, or None."""
+def input_timing(
+    pedals: dict[str, Any], step: int, t0_ns: int, sumo_ns: int, frame_ns: int
+) -> dict[str, Any]:
+    """Where an input's time went in this process, ms: from the server's
+    receipt to this process (``relay_in``: the pipe, and the policy if it was
+    acting), waiting for the step (``wait``), the SUMO step, reading the
+    vehicles and sending the frame. The policy acts after the frame."""
+    return {
+        "seq": pedals["seq"],
+        "step": step,
+        "relay_in": (pedals["got_ns"] - pedals["rx_ns"]) / 1e6,
+        "wait": (t0_ns - pedals["got_ns"]) / 1e6,
+        "sumo": sumo_ns / 1e6,
+        "frame": frame_ns / 1e6,
+    }
+
+
+def _wait_until(
+    conn: Connection, until_ns: int, pedals: dict[str, Any], period_ns: int
+) -> str | None:
+    """Take the server's messages until the step due at `until_ns`.
+
+    A pedal pressed or released starts that step early: at once when it is
+    due within a period, else (the step before was started early) as soon as
+    it is.
+
+    Returns:
+        a stop's reason; `PULL_STEP` for a step started early; else None
+        (at `until_ns`).
+    """
+    pressed = False
+    earliest_ns = until_ns - period_ns
     while True:
-        remaining = (until_ns - time.perf_counter_ns()) / 1e9
-        if not conn.poll(max(remaining, 0.0)):
-            return None
+        now = time.perf_counter_ns()
+        if pressed and now >= earliest_ns:
+            return PULL_STEP
+        deadline = earliest_ns if pressed else until_ns
+        if not conn.poll(max(deadline - now, 0) / 1e9):
+            if not pressed:
+                return None
+            continue
         message = _receive(conn)
         if message["type"] == "input":
+            before = (pedals["throttle"] > 0, pedals["brake"] > 0)
             pedals.update(
                 throttle=min(max(float(message["throttle"]), 0.0), 1.0),
                 brake=min(max(float(message["brake"]), 0.0), 1.0),
                 seq=int(message["seq"]),
+                rx_ns=int(message.get("rx_ns", 0)),
+                got_ns=time.perf_counter_ns(),
             )
+            now_pressed = (pedals["throttle"] > 0, pedals["brake"] > 0)
+            pressed = pressed or before != now_pressed
         elif message["type"] == "stop":
             return str(message.get("reason", "abandoned"))
 
@@ -179,11 +246,16 @@ def ride_record(
             steps,
             events,
             sim.ego_entered_s,
-            sim.ego_arrived_s,
+            sim.crossings,
             outcome.get("late_steps", 0),
         )
     )
-    return {"ride": ride, "steps": steps, "events": events}
+    return {
+        "ride": ride,
+        "steps": steps,
+        "events": events,
+        "passes": len(sim.crossings),
+    }
 
 
 def _prepare_jax() -> None:

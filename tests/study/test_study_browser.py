@@ -1,10 +1,13 @@
 """The whole study in a real headless Chromium, end to end.
 
-`jaxround study serve` runs as a subprocess on a free port of 127.0.0.1 with
-short rides; Selenium drives Debian's ``chromium`` through ``chromedriver``
-(nothing is downloaded): consent, demographics, the practice drive and both
-rides with scripted key presses, the three questions. Then the rows in
-SQLite and the report's counts are checked.
+`jaxround study serve` runs as a subprocess on a free port of 127.0.0.1;
+Selenium drives Debian's ``chromium`` through ``chromedriver`` (nothing is
+downloaded). The first test goes through the whole study with short rides:
+consent, demographics, the practice drive and both rides with scripted key
+presses, the three questions; then the rows in SQLite and the report's
+counts are checked. The second drives one ride of the default length with
+the throttle held (and the brake tapped to measure the input-to-frame
+latency part by part, which it prints).
 
 Without a browser the test is skipped, unless ``JAXROUND_REQUIRE_BROWSER=1``
 (set by ``.ci/run``), under which it fails.
@@ -13,6 +16,7 @@ Without a browser the test is skipped, unless ``JAXROUND_REQUIRE_BROWSER=1``
 from __future__ import annotations
 
 import json
+import statistics
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -20,6 +24,7 @@ from pathlib import Path
 import pytest
 
 from jaxround.apps.cli.main import main
+from jaxround.study.settings import StudySettings
 from jaxround.study.storage import StudyDatabase
 from tests.study.study_browser import chromium_driver, study_server
 
@@ -117,3 +122,96 @@ def test_a_participant_completes_the_study_in_chromium(
     tables = json.loads((out / "report.json").read_text())["tables"]
     for question, option in ANSWERS.items():
         assert tables[question]["counts"] == [int(i == option) for i in range(5)]
+
+
+#: The parts of the input-to-frame latency, in their order (docs/study.md).
+LATENCY_PARTS = ("event", "websocket", "relay_in", "wait", "sumo", "frame",
+                 "relay_out", "draw", "total")  # fmt: skip
+#: Seconds between two taps of the brake (each a press and a release).
+TAP_EVERY_S = 1.5
+
+
+@pytest.fixture(scope="module")
+def default_study(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> Iterator[tuple[str, Path]]:
+    folder = tmp_path_factory.mktemp("browser-default")
+    with study_server(folder, "--practice-passes", "1") as running:
+        yield running
+
+
+def latency_table(records: list[dict]) -> str:
+    lines = [f"{'part':>10} {'median':>8} {'p90':>8} ms ({len(records)} inputs)"]
+    for part in LATENCY_PARTS:
+        values = sorted(r[part] for r in records if r.get(part) is not None)
+        if values:
+            p90 = values[min(len(values) - 1, int(0.9 * len(values)))]
+            lines.append(f"{part:>10} {statistics.median(values):8.1f} {p90:8.1f}")
+    return "\n".join(lines)
+
+
+def test_a_ride_of_the_default_length_and_the_latency_part_by_part(
+    chromium: object, default_study: tuple[str, Path]
+) -> None:
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.common.keys import Keys
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    driver = chromium
+    base, db = default_study
+    wait = WebDriverWait(driver, 120)
+
+    def visible(element_id: str) -> object:
+        return wait.until(lambda d: d.find_element(By.ID, element_id).is_displayed()
+                          and d.find_element(By.ID, element_id))  # fmt: skip
+
+    def status() -> str:
+        return driver.find_element(By.ID, "drive-status").text
+
+    driver.get(base + "/")
+    driver.execute_script("sessionStorage.clear()")
+    driver.get(base + "/")
+    minutes = StudySettings(policy=Path("p")).estimated_minutes()
+    assert visible("consent-minutes").text == str(minutes)
+    visible("consent-box").click()
+    visible("consent-go").click()
+    visible("demo-go").click()
+    visible("intro-go").click()  # the practice: one pass, the throttle held
+    wait.until(lambda d: "s left" in status())
+    ActionChains(driver).key_down(Keys.ARROW_UP).perform()
+    visible("drive-end-text")
+    ActionChains(driver).key_up(Keys.ARROW_UP).perform()
+    visible("drive-end-go").click()
+
+    visible("intro-go").click()  # the first ride, among traffic
+    assert visible("drive-wait").is_displayed()  # the waiting screen, not the view
+    wait.until(lambda d: "s left" in status())
+    assert not driver.find_element(By.ID, "drive-wait").is_displayed()
+    driver.execute_script("window.studyLatency = []")
+    ActionChains(driver).key_down(Keys.ARROW_UP).perform()
+    end = driver.find_element(By.ID, "drive-end")
+    while not end.is_displayed():
+        time.sleep(TAP_EVERY_S)
+        ActionChains(driver).key_down(Keys.SPACE).perform()
+        time.sleep(0.08)
+        ActionChains(driver).key_up(Keys.SPACE).perform()
+    ActionChains(driver).key_up(Keys.ARROW_UP).perform()
+    text = visible("drive-end-text").text
+    records = driver.execute_script("return window.studyLatency")
+
+    database = StudyDatabase(db)
+    (ride,) = database.rows("rides", "WHERE kind = 'first'")
+    steps = database.rows("ride_steps", "WHERE ride_id = ?", (ride["ride_id"],))
+    driving_s = sum(s["on_road"] for s in steps) * ride["step_s"]
+    throttle = [s["throttle"] for s in steps if s["on_road"]]
+    print(f"\ndefault ride: {ride['status']}, {driving_s:.1f} s of driving, "
+          f"{ride['steps']} steps, crossing {ride['crossing_time_s']} s per pass; "
+          f"{text}")  # fmt: skip
+    print(latency_table(records))
+    assert ride["status"] == "arrived" and "8 times" in text
+    assert driving_s >= 60.0
+    assert statistics.median(throttle) > 0.9  # held
+    assert len(records) >= 20
+    assert all(r.get("wait") is not None for r in records)  # the server said
+    assert statistics.median(r["total"] for r in records) < 100.0

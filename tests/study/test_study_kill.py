@@ -84,6 +84,15 @@ def alive(pid: int) -> bool:
     return state.split()[0] != "Z"
 
 
+def drove_both_rides(db: Path, pid: str) -> None:
+    """The participant's two rides, stored as having run their course (the
+    answers come after them; driving them is `test_study_browser`'s part)."""
+    for kind in ("first", "second"):
+        StudyDatabase(db).save_ride({"ride": {
+            "ride_id": f"{pid}-{kind}", "participant_id": pid, "kind": kind,
+            "status": "time_limit"}, "steps": [], "events": []})  # fmt: skip
+
+
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="reads /proc")
 def test_killing_the_server_loses_no_answer(tmp_path: Path) -> None:
     policy = write_standin_policy(tmp_path, load_config("milan"))
@@ -96,6 +105,7 @@ def test_killing_the_server_loses_no_answer(tmp_path: Path) -> None:
         pid = body["participant_id"]
         about = {"gender": "female", "age": 27, "driving_years": 8}
         assert post(base, f"/api/participants/{pid}/demographics", about)[0] == 200
+        drove_both_rides(db, pid)
         for question, option in (("smoothness", 2), ("safety", 3)):
             assert post(base, f"/api/participants/{pid}/answers",
                         {"question": question, "option": option})[0] == 201  # fmt: skip

@@ -30,6 +30,11 @@ def test_two_scripted_riders_finish_and_the_delays_are_reported(
     delay = figures["delay_ms"]
     assert 0 < delay["median"] <= delay["p99"] <= delay["max"]
     assert figures["policy_step_ms"]["median"] > 0  # the policy drove AVs
+    latency = figures["latency_ms"]
+    assert latency["inputs"] >= 2  # the riders' pedal changes, each timed
+    parts = ("relay_in", "wait", "sumo", "frame", "relay_out", "websocket")
+    assert sum(latency[p]["median"] for p in parts) > 0
+    assert 0 < latency["total"]["median"] <= latency["total"]["p99"]
 
 
 def test_load_refuses_counts_and_durations_out_of_bounds(

@@ -17,12 +17,15 @@ from pathlib import Path
 import pytest
 
 from jaxround.apps.cli.main import main
+from jaxround.scenario.config import load_config
 from jaxround.study.protocol import MAX_MESSAGE_BYTES, BadMessageError, parse_message
 from jaxround.study.questions import PAPER_COUNTS, paper_option, worded_questions
-from jaxround.study.report import build_report, sign_test
+from jaxround.study.report import build_report, sign_test, tables_markdown
+from jaxround.study.settings import StudySettings
 from jaxround.study.storage import (
     COLUMNS,
     AnswerExistsError,
+    NotYetError,
     StudyDatabase,
     UnknownParticipantError,
 )
@@ -31,16 +34,26 @@ ROOT = Path(__file__).resolve().parents[2]
 QUESTIONS = ("smoothness", "safety", "preference")
 
 
+def drive_both_rides(database: StudyDatabase, pid: str) -> None:
+    """Store a first and a second ride that ran their course."""
+    for kind, status in (("first", "arrived"), ("second", "time_limit")):
+        record = ride(f"{pid}-{kind}", pid, 0.2, status)
+        record["ride"]["kind"] = kind
+        database.save_ride(record)
+
+
 def paper_database(path: Path) -> StudyDatabase:
     """Ten unblinded participants who answer exactly as the paper's ten did."""
     database = StudyDatabase(path)
     for i in range(10):
         pid, _ = database.add_participant(blind=False)
+        drive_both_rides(database, pid)
         for question in QUESTIONS:
             counts = PAPER_COUNTS[question]
             # the i-th answer in the order of the paper's options
             option = next(o for o in range(5) if i < sum(counts[: o + 1]))
             database.add_answer(pid, question, option)
+        database.finish(pid)
     return database
 
 
@@ -54,7 +67,7 @@ def test_the_report_gives_the_papers_counts_and_hand_checked_p_values(
     tmp_path: Path,
 ) -> None:
     report = build_report(paper_database(tmp_path / "study.sqlite"))
-    assert report["participants"] == 10
+    assert report["participants"] == report["completed"] == 10
     assert report["orders"] == {"20-80": 5, "80-20": 5}
     for question in QUESTIONS:
         table = report["tables"][question]
@@ -77,15 +90,98 @@ def test_blind_answers_are_mapped_back_by_the_ride_order(tmp_path: Path) -> None
     second, order_2 = database.add_participant(blind=True)
     assert (order_1, order_2) == ("20-80", "80-20")  # counterbalanced
     for pid in (first, second):  # "ride A was definitely smoother than ride B"
+        drive_both_rides(database, pid)
         database.add_answer(pid, "smoothness", 0)
-    database.add_answer(second, "preference", 4)
+        database.add_answer(pid, "safety", 4)
+        database.add_answer(pid, "preference", 4 if pid == second else 1)
+        database.finish(pid)
     table = build_report(database)["tables"]
     assert table["smoothness"]["counts"] == [1, 0, 0, 1, 0]  # A was 20%, then 80%
-    assert table["preference"]["counts"] == [0, 0, 0, 0, 1]
+    assert table["preference"]["counts"] == [0, 1, 0, 0, 1]
     assert [paper_option(o, "80-20", True) for o in range(5)] == [3, 2, 1, 0, 4]
     assert [paper_option(o, "80-20", False) for o in range(5)] == [0, 1, 2, 3, 4]
     with pytest.raises(ValueError, match="option 5"):
         paper_option(5, "20-80", True)
+
+
+def test_answers_wait_for_both_rides_and_the_survey_for_every_answer(
+    tmp_path: Path,
+) -> None:
+    database = StudyDatabase(tmp_path / "study.sqlite")
+    pid, _ = database.add_participant(blind=False)
+    with pytest.raises(NotYetError, match="the first ride and the second ride have"):
+        database.add_answer(pid, "safety", 2)
+    database.save_ride(ride("r1", pid, 0.2, "arrived"))
+    second = ride("r2", pid, 0.8, "abandoned")
+    second["ride"]["kind"] = "second"
+    database.save_ride(second)  # cut short: not driven to the end
+    with pytest.raises(NotYetError, match="the second ride has not been driven"):
+        database.add_answer(pid, "safety", 2)
+    second = ride("r3", pid, 0.8, "time_limit")
+    second["ride"]["kind"] = "second"
+    database.save_ride(second)
+    database.add_answer(pid, "safety", 2)
+    with pytest.raises(NotYetError, match=r"\['smoothness', 'preference'\]"):
+        database.finish(pid)
+    assert database.participant(pid)["finished_utc"] is None  # rolled back
+    assert [a["question"] for a in database.rows("answers")] == ["safety"]
+
+
+def insert_answer_directly(db: Path, pid: str, question: str, option: int) -> None:
+    """An answer written past the server's checks (as an older server stored
+    them): the report must still leave it out."""
+    with sqlite3.connect(db) as conn:
+        conn.execute("INSERT INTO answers VALUES (?, ?, ?, ?, 'x')",
+                     (pid, question, option, option))  # fmt: skip
+
+
+def test_the_report_counts_completed_participants_only(tmp_path: Path) -> None:
+    db = tmp_path / "study.sqlite"
+    database = StudyDatabase(db)
+    # Four completed participants; safety answers 3, 3, 2, 1.
+    for safety in (3, 3, 2, 1):
+        pid, _ = database.add_participant(blind=False)
+        drive_both_rides(database, pid)
+        for question in QUESTIONS:
+            database.add_answer(pid, question, safety if question == "safety" else 4)
+        database.finish(pid)
+    # Non-finishers who all "answered" that 80% was partially safer.
+    consent_only, _ = database.add_participant(blind=False)
+    practice, _ = database.add_participant(blind=False)
+    practice_ride = ride("p", practice, 0.0, "arrived")
+    practice_ride["ride"]["kind"] = "practice"
+    database.save_ride(practice_ride)
+    one_ride, _ = database.add_participant(blind=False)
+    database.save_ride(ride("o", one_ride, 0.2, "arrived"))
+    unfinished, _ = database.add_participant(blind=False)
+    drive_both_rides(database, unfinished)
+    database.add_answer(unfinished, "safety", 2)
+    for pid in (consent_only, practice, one_ride):
+        insert_answer_directly(db, pid, "safety", 2)
+    report = build_report(database)
+    assert (report["participants"], report["completed"]) == (8, 4)
+    assert report["by_status"] == {
+        "consent_only": 1,
+        "practice_driven": 1,
+        "first_ride_driven": 1,
+        "both_rides_driven": 1,
+        "completed": 4,
+    }
+    safety = report["tables"]["safety"]
+    assert safety["counts"] == [0, 1, 1, 2, 0]
+    # 3 of 4 favour 80%: P(X >= 3) = (4 + 1) / 16, P(X <= 3) = 15 / 16
+    test = safety["sign_test"]
+    assert (test["k"], test["n"]) == (3, 4)
+    assert test["p_one_sided"] == 5 / 16 and test["p_two_sided"] == 10 / 16
+    assert report["tables"]["smoothness"]["counts"] == [0, 0, 0, 0, 4]
+    assert report["tables"]["smoothness"]["sign_test"]["p_one_sided"] is None
+    text = tables_markdown(report)
+    assert (
+        "Completed participants (both rides driven to the end, three answers): 4"
+        in text
+    )
+    assert ("1 consent only, 1 practice driven, 1 first ride driven, "
+            "1 both rides driven (8 participants in all)") in text  # fmt: skip
 
 
 def test_telemetry_counts_completed_rides_per_scenario(tmp_path: Path) -> None:
@@ -151,6 +247,7 @@ def test_the_database_refuses_foreign_files_and_keeps_first_answers(
     assert text.read_text() == "not a database, but someone's notes"
     database = StudyDatabase(tmp_path / "study.sqlite")
     pid, _ = database.add_participant(blind=False)
+    drive_both_rides(database, pid)
     database.add_answer(pid, "safety", 3)
     with pytest.raises(AnswerExistsError):
         database.add_answer(pid, "safety", 0)
@@ -236,3 +333,15 @@ def test_the_pages_are_package_data_and_load_nothing_from_elsewhere() -> None:
     for name in ("index.html", "app.js", "drive.js", "scene.js", "hud.js"):
         text = (static / "static" / name).read_text()
         assert "http://" not in text and "https://" not in text, name
+
+
+def test_the_consent_pages_estimate_follows_the_settings() -> None:
+    cfg = load_config("milan")
+    settings = StudySettings(policy=Path("policy.npz"))
+    # practice 90 s, two rides of 180 s with 30 s of warm-up each, 180 s of forms
+    assert settings.estimated_minutes() == 12  # 690 s
+    shorter = settings.replace(ride_s=60.0, practice_s=30.0)
+    assert shorter.estimated_minutes() == 7  # 390 s
+    for name in ("passes", "practice_passes"):
+        with pytest.raises(ValueError, match=f"{name}: 0, expected 1-50"):
+            settings.replace(**{name: 0}).validate(cfg)

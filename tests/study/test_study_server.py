@@ -8,7 +8,9 @@ The server runs in this process (uvicorn in a thread) on a free port of
 from __future__ import annotations
 
 import contextlib
+import http.client
 import json
+import logging
 import socket
 import threading
 import time
@@ -27,7 +29,9 @@ from websockets.sync.client import ClientConnection, connect
 
 from jaxround.apps.cli.main import main
 from jaxround.scenario.config import load_config
+from jaxround.study.limits import MAX_BODY_BYTES
 from jaxround.study.load import free_port, write_standin_policy
+from jaxround.study.logs import LOGGER
 from jaxround.study.protocol import MAX_MESSAGE_BYTES, MAX_MESSAGES_PER_S
 from jaxround.study.server import create_app
 from jaxround.study.settings import StudySettings
@@ -93,6 +97,26 @@ class Server:
     def process(self, ride: dict[str, Any]) -> Any:
         return self.app.state.manager.rides[ride["ride_id"]].process
 
+    def drove_both_rides(self, pid: str) -> None:
+        """Rides that ran their course, stored as the server stores them (a
+        real one takes a warm-up among traffic; `test_study_browser` drives
+        them)."""
+        for kind in ("first", "second"):
+            self.database.save_ride({"ride": {
+                "ride_id": f"{pid}-{kind}", "participant_id": pid, "kind": kind,
+                "status": "arrived"}, "steps": [], "events": []})  # fmt: skip
+
+
+class LogLines(logging.Handler):
+    """The server's log lines, as their fields."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.INFO)
+        self.lines: list[dict[str, Any]] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.lines.append(dict(getattr(record, "fields", {})))
+
 
 @contextlib.contextmanager
 def serving(folder: Path, **changes: Any) -> Iterator[Server]:
@@ -109,6 +133,10 @@ def serving(folder: Path, **changes: Any) -> Iterator[Server]:
     config = uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning",
                             ws_max_size=MAX_MESSAGE_BYTES)  # fmt: skip
     uv = uvicorn.Server(config)
+    log = LogLines()
+    LOGGER.addHandler(log)
+    LOGGER.setLevel(logging.INFO)
+    app.state.log = log
     thread = threading.Thread(target=uv.run, daemon=True)
     thread.start()
     deadline = time.monotonic() + 30
@@ -120,6 +148,7 @@ def serving(folder: Path, **changes: Any) -> Iterator[Server]:
     finally:
         uv.should_exit = True
         thread.join(60)
+        LOGGER.removeHandler(log)
 
 
 @pytest.fixture(scope="module")
@@ -175,6 +204,7 @@ def test_answers_and_forms_are_checked_before_anything_is_stored(
     server: Server,
 ) -> None:
     pid = server.participant()
+    server.drove_both_rides(pid)
     path = f"/api/participants/{pid}/answers"
     status, body = server.http("POST", path, {"question": "speed", "option": 1})
     assert status == 422 and "question" in json.dumps(body)
@@ -198,6 +228,113 @@ def test_answers_and_forms_are_checked_before_anything_is_stored(
     assert server.http("POST", "/api/participants", {"consent": False})[0] == 422
     rows = server.database.rows("answers", "WHERE participant_id = ?", (pid,))
     assert [(r["question"], r["option_shown"]) for r in rows] == [("safety", 1)]
+
+
+def test_the_survey_is_refused_before_both_rides_and_types_are_strict(
+    server: Server,
+) -> None:
+    pid = server.participant()
+    path = f"/api/participants/{pid}/answers"
+    status, body = server.http("POST", path, {"question": "safety", "option": 2})
+    assert status == 409
+    assert body["detail"] == (
+        "the questions come after both rides: the first ride and the second ride "
+        "have not been driven to the end"
+    )
+    status, body = server.http("POST", f"/api/participants/{pid}/finish")
+    assert status == 409 and "not answered yet" in body["detail"]
+    server.drove_both_rides(pid)
+    status, body = server.http("POST", path, {"question": "safety", "option": "2"})
+    assert status == 422 and body["detail"][0]["loc"] == ["body", "option"]
+    assert body["detail"][0]["type"] == "int_type"
+    for bad in ({"question": "safety", "option": 2.0},
+                {"question": "safety", "option": True}):  # fmt: skip
+        assert server.http("POST", path, bad)[0] == 422
+    status, _ = server.http("POST", f"/api/participants/{pid}/demographics",
+                            {"age": "31"})  # fmt: skip
+    assert status == 422
+    assert server.database.rows("answers", "WHERE participant_id = ?", (pid,)) == []
+    assert server.http("POST", path, {"question": "safety", "option": 2})[0] == 201
+
+
+def post_raw(server: Server, path: str, body: bytes, chunked: bool = False,
+             ) -> tuple[int, bytes]:  # fmt: skip
+    host, port = server.base.removeprefix("http://").split(":")
+    conn = http.client.HTTPConnection(host, int(port), timeout=30)
+    headers = {"Content-Type": "application/json"}
+    try:
+        if chunked:
+            pieces = (body[i : i + 1024] for i in range(0, len(body), 1024))
+            conn.request("POST", path, pieces, headers, encode_chunked=True)
+        else:
+            conn.request("POST", path, body, headers)
+        response = conn.getresponse()
+        return response.status, response.read()
+    except (BrokenPipeError, ConnectionResetError):  # refused before all was sent
+        response = conn.getresponse()
+        return response.status, response.read()
+    finally:
+        conn.close()
+
+
+def test_a_body_over_the_limit_gets_413_and_no_error_echoes_the_input(
+    server: Server,
+) -> None:
+    pid = server.participant()
+    path = f"/api/participants/{pid}/answers"
+    marker = b"ECHO-ME"
+    huge = b'{"question": "' + marker * (5 * 2**20 // len(marker)) + b'", "option": 1}'
+    for chunked in (False, True):
+        status, reply = post_raw(server, path, huge, chunked=chunked)
+        assert status == 413, (chunked, reply[:200])
+        assert json.loads(reply) == {
+            "detail": f"request body over {MAX_BODY_BYTES} bytes"
+        }
+    just_under = b'{"question": "' + marker * 400 + b'", "option": 1}'
+    assert len(just_under) < MAX_BODY_BYTES
+    status, reply = post_raw(server, path, just_under)
+    assert status == 422 and marker not in reply and len(reply) < 600, reply
+    status, reply = post_raw(server, path, b"{" + marker * 300)
+    assert status == 422 and marker not in reply, reply
+    assert server.database.rows("answers", "WHERE participant_id = ?", (pid,)) == []
+    lines = server.app.state.log.lines
+    access = [x for x in lines if x["event"] == "http" and "/answers" in x["route"]]
+    assert [line["status"] for line in access[-4:]] == [413, 413, 422, 422]
+
+
+def test_the_log_has_a_line_per_ride_with_its_status_and_no_personal_data(
+    server: Server,
+) -> None:
+    pid = server.participant()
+    server.http("POST", f"/api/participants/{pid}/demographics",
+                {"gender": "female", "age": 47})  # fmt: skip
+    driven, broken = server.ride(pid), server.ride(pid)
+    with server.socket(driven) as ws, server.socket(broken) as ws_broken:
+        until(ws, "ready")
+        ws.send(json.dumps({"type": "start"}))
+        until(ws_broken, "ready")
+        ws_broken.send("{oops")
+        drive_to_end(ws)
+    server.stored_ride(broken["ride_id"])
+    lines = server.app.state.log.lines
+    mine = [line for line in lines if line.get("participant") == pid]
+    ended = {line["ride"]: line["status"] for line in mine
+             if line["event"] == "ride_ended"}  # fmt: skip
+    assert ended == {driven["ride_id"]: "time_limit", broken["ride_id"]: "bad_message"}
+    assert len([line for line in mine if line["event"] == "ride_ended"]) == 2
+    events = [line["event"] for line in mine if line.get("ride") == driven["ride_id"]]
+    assert events == ["ride_requested", "ride_ready", "ride_started",
+                      "ride_priority", "ride_ended"]  # fmt: skip
+    bad = [line for line in mine if line["event"] == "bad_message"]
+    assert len(bad) == 1 and "not JSON" in bad[0]["reason"]
+    assert [line["event"] for line in mine][:2] == ["participant_added",
+                                                    "demographics_stored"]  # fmt: skip
+    text = json.dumps(lines)
+    assert "female" not in text
+    assert not any({"age", "gender", "option"} & set(line) for line in lines)
+    assert ADMIN not in text and "127.0.0.1" not in text
+    sockets = [line for line in lines if line["event"] == "websocket"]
+    assert sockets and all(line["route"] == "/ws/rides/{ride_id}" for line in sockets)
 
 
 def test_a_malformed_message_ends_the_ride_with_a_named_error(server: Server) -> None:

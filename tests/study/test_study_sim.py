@@ -9,6 +9,7 @@ import pytest
 
 from jaxround.scenario.config import load_config
 from jaxround.scenario.schedule import make_schedule
+from jaxround.study.frames import ride_frame
 from jaxround.study.sim import (
     EGO_ACCEL_MPS2,
     EGO_BRAKE_MPS2,
@@ -89,8 +90,31 @@ def test_a_misjudged_gap_is_a_recorded_collision_and_the_ride_goes_on(
         collisions = [e for e in sim.events if e["kind"] == "collision"]
         assert {e["other"] for e in collisions} == {"hv"}
         assert sim.ego_arrived_s is not None  # the ride went on to the exit
-        frame = sim.frame(step=0, input_seq=3)
+        frame = ride_frame(sim, step=0, input_seq=3)
         assert frame["collisions"] == sim.collisions
         assert frame["ego"] is None  # it has left
+    finally:
+        sim.close()
+
+
+def test_each_pass_sends_the_ego_in_again_until_the_last(tmp_path: Path) -> None:
+    sim = RideSimulation(spec(passes=3), tmp_path)
+    try:
+        sim.warm_up()
+        entries, was_on_road = 0, False
+        for step in range(1500):
+            sim.step(1.0, 0.0)
+            entries += sim.ego_on_road and not was_on_road
+            was_on_road = sim.ego_on_road
+            frame = ride_frame(sim, step, 0)
+            assert (frame["pass"], frame["passes"]) == (sim.current_pass, 3)
+            assert (frame["ego"] is None) == (not sim.ego_on_road)
+            if sim.ego_arrived_s is not None:
+                break
+        assert entries == 3 and len(sim.crossings) == 3
+        assert all(c > 5.0 for c in sim.crossings)
+        on_road_s = sum(row["on_road"] for row in sim.trace) * 0.1
+        assert on_road_s == pytest.approx(sum(sim.crossings), abs=0.35)
+        assert sim.ego_arrived_s is not None and frame["ego"] is None
     finally:
         sim.close()

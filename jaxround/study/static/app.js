@@ -56,10 +56,12 @@ function render() {
 function intro(kind) {
   $("intro-title").textContent = RIDES[kind].title;
   const exit = "enter from the east, go round the ring and take the third exit (a left turn)";
+  const passes = (n) => (n === 1 ? "once" : `${n} times: after each exit you start again at the entry`);
   $("intro-text").textContent = kind === "practice"
-    ? `A practice drive on the empty roundabout: ${exit}. It ends when you have left the roundabout, or after ${study.practice_s} s.`
-    : `This ride is ${state.labels[kind]}. Drive as you would in real traffic: ${exit}. `
-      + `It ends when you have left the roundabout, or after ${study.ride_s} s.`;
+    ? `A practice drive on the empty roundabout: ${exit}, ${passes(study.practice_passes)}. `
+      + `It ends after that, or after ${study.practice_s} s.`
+    : `This ride is ${state.labels[kind]}. Drive as you would in real traffic: ${exit}, `
+      + `${passes(study.passes)}. It ends after that, or after ${study.ride_s} s.`;
   $("intro-error").textContent = "";
   $("intro-go").disabled = false;
   $("intro-go").onclick = () => drive(kind);
@@ -86,6 +88,7 @@ async function drive(kind) {
       view: $("view"), speedometer: $("speedometer"), minimap: $("minimap"),
       throttleBar: $("pedal-throttle"), brakeBar: $("pedal-brake"),
       status: $("drive-status"), collision: $("collision-flash"),
+      wait: $("drive-wait"), waitBar: $("drive-wait-bar"), waitText: $("drive-wait-text"),
     }, roads);
   }
   $("drive-label").textContent = kind === "practice" ? "Practice" : `${RIDES[kind].title}: ${result.data.label}`;
@@ -93,7 +96,11 @@ async function drive(kind) {
   const summary = await cockpit.ride(result.data, study.step_s);
   const completed = summary.status === "arrived" || summary.status === "time_limit";
   const lines = [];
-  if (summary.status === "arrived") lines.push(`You crossed the roundabout in ${summary.crossing_time_s.toFixed(1)} s.`);
+  if (summary.crossing_time_s !== null && summary.passes) {
+    const each = summary.passes === 1 ? "" : ` ${summary.passes} times, ${summary.crossing_time_s.toFixed(1)} s each on average`;
+    lines.push(summary.passes === 1 ? `You crossed the roundabout in ${summary.crossing_time_s.toFixed(1)} s.`
+      : `You crossed the roundabout${each}.`);
+  }
   if (summary.status === "time_limit") lines.push("The ride reached its time limit.");
   if (summary.collisions) lines.push(`Collisions: ${summary.collisions}.`);
   if (!completed) lines.push(`The ride did not complete (${summary.error || summary.status}). You can drive it again.`);
@@ -126,7 +133,8 @@ function survey() {
     $("survey-go").disabled = true;
     const result = await api("POST", `/api/participants/${state.participant_id}/answers`,
       { question: question.id, option: Number(chosen.value) });
-    if (result.status !== 201 && result.status !== 409) {
+    const answeredBefore = result.status === 409 && /answered already/.test(problem(result));
+    if (result.status !== 201 && !answeredBefore) {
       $("survey-error").textContent = problem(result);
       $("survey-go").disabled = false;
       return;
@@ -137,13 +145,18 @@ function survey() {
 }
 
 async function finish() {
-  await api("POST", `/api/participants/${state.participant_id}/finish`);
+  const result = await api("POST", `/api/participants/${state.participant_id}/finish`);
+  if (result.status !== 200) {
+    $("survey-error").textContent = problem(result);
+    return show("survey");
+  }
   go("thanks");
 }
 
 async function main() {
   study = (await api("GET", "/api/study")).data;
   setStudyDefaults(study.pedal_map);
+  $("consent-minutes").textContent = String(study.estimate_min);
   pedalPanel = new PedalPanel({
     box: $("pedal-box"), status: $("pedal-status"), setup: $("pedal-setup"), reset: $("pedal-reset"),
     wizard: $("pedal-wizard"), step: $("pedal-step"), cancel: $("pedal-cancel"), note: $("pedal-note"),

@@ -3,8 +3,14 @@
 // The server sends a frame per SUMO step (10 Hz); the view is drawn at the
 // display's rate, one step behind, interpolating between the last two
 // frames. Each key press or release is sent at once with a new input number,
-// and the time until the first drawn frame that reflects it (the frame's
-// "seq" has reached it) is sent back as the input-to-frame latency.
+// and the time from the key event to the first drawn frame that reflects it
+// (the frame's "seq" has reached it) is sent back as the input-to-frame
+// latency. A frame that answers a key press is drawn as it arrives, without
+// waiting for the display's next frame. The server says where its part of
+// that time went ("timing"); the page adds its own parts and keeps each
+// measured input, part by part, in `window.studyLatency` (docs/study.md).
+// Where the display's frames come slowly (software rendering), the view is
+// drawn with fewer pixels.
 
 import { bonnet, buildWorld, carMesh, placeCar, placeDriverCamera, THREE } from "./scene.js";
 import { drawPedals, drawSpeedometer, Minimap } from "./hud.js";
@@ -18,6 +24,10 @@ const COUNTDOWN_S = 2;
 const THROTTLE_KEYS = new Set(["ArrowUp", "KeyW"]);
 const BRAKE_KEYS = new Set(["ArrowDown", "KeyS", "Space"]);
 
+const LATENCY_KEPT = 2000;        // measured inputs kept on the page
+const RESOLUTION_EVERY = 30;      // display frames between two resolution checks
+const MIN_PIXEL_RATIO = 0.5;
+
 function lerp(a, b, t) { return a + (b - a) * t; }
 function lerpAngle(a, b, t) { const d = ((b - a + 540) % 360) - 180; return a + d * t; }
 
@@ -26,8 +36,8 @@ export class Cockpit {
   constructor(elements, roads) {
     this.el = elements;
     this.roads = roads;
-    this.renderer = new THREE.WebGLRenderer({ canvas: elements.view, antialias: true,
-      preserveDrawingBuffer: true });
+    this.renderer = new THREE.WebGLRenderer({ canvas: elements.view, antialias: false,
+      preserveDrawingBuffer: false });
     this.scene = buildWorld(roads);
     this.camera = new THREE.PerspectiveCamera(70, 1, 0.1, 900);
     this.camera.add(bonnet());
@@ -35,12 +45,28 @@ export class Cockpit {
     this.minimap = new Minimap(elements.minimap, roads);
     this.cars = new Map();
     this.lanes = new Map(roads.lanes.map((l) => [l.id, l]));
+    this.pixelRatio = this.fullRatio = Math.min(window.devicePixelRatio || 1, 2);
+    this.intervals = [];
     window.addEventListener("resize", () => this.resize());
+  }
+
+  /** Fewer pixels when the display's frames come slower than 30 a second
+   * (software rendering), more again when they come faster than 50. */
+  adaptResolution(intervalMs) {
+    this.intervals.push(intervalMs);
+    if (this.intervals.length < RESOLUTION_EVERY) return;
+    const sorted = this.intervals.sort((a, b) => a - b);
+    const median = sorted[sorted.length >> 1];
+    this.intervals = [];
+    const ratio = median > 1000 / 30 ? Math.max(MIN_PIXEL_RATIO, this.pixelRatio * 0.75)
+      : median < 1000 / 50 ? Math.min(this.fullRatio, this.pixelRatio / 0.75) : this.pixelRatio;
+    if (ratio !== this.pixelRatio) { this.pixelRatio = ratio; this.resize(); }
   }
 
   resize() {
     const canvas = this.el.view;
     const w = canvas.clientWidth || window.innerWidth, h = canvas.clientHeight || window.innerHeight;
+    this.renderer.setPixelRatio(this.pixelRatio);
     this.renderer.setSize(w, h, false);
     this.camera.aspect = w / h;
     this.camera.updateProjectionMatrix();
@@ -49,7 +75,17 @@ export class Cockpit {
   /** Drive one ride; resolves with the server's summary at its end. */
   ride(info, stepS) {
     this.resize();
+    this.showCars([]);  // nothing of the ride before
     return new Ride(this, info, stepS).run();
+  }
+
+  /** The waiting screen over the view until the ride is ready. */
+  waiting(share) {
+    const { wait, waitBar, waitText } = this.el;
+    wait.hidden = share === null;
+    if (share === null) return;
+    waitBar.style.width = `${Math.round(share * 100)}%`;
+    waitText.textContent = share > 0 ? `${Math.round(share * 100)}% ready` : "Starting the simulation\u2026";
   }
 
   showCars(cars) {
@@ -86,11 +122,11 @@ class Ride {
     this.pedals = { throttle: 0, brake: 0 };     // sent: the more pressed of the two
     this.sent = { throttle: 0, brake: 0, at: 0 };
     this.seq = -1;
-    this.probe = null;       // {seq, t, seenAt}: the input whose latency is measured
+    this.probe = null;       // the input whose latency is measured (see measure)
     this.prev = null; this.cur = null;
     this.started = false; this.over = false;
     this.collisions = 0; this.egoLanes = [];
-    this.lastView = null; this.egoSeen = false;
+    this.ready = false;
   }
 
   run() {
@@ -106,7 +142,8 @@ class Ride {
       this.onKey = (event) => this.key(event);
       window.addEventListener("keydown", this.onKey);
       window.addEventListener("keyup", this.onKey);
-      this.status("Preparing the traffic\u2026");
+      this.status("");
+      this.cockpit.waiting(0);
       this.lastTick = performance.now();
       requestAnimationFrame((t) => this.tick(t));
     });
@@ -118,12 +155,26 @@ class Ride {
     if (m.type === "frame") {
       this.prev = this.cur;
       this.cur = { f: m, at: performance.now() };
-      if (this.probe && !this.probe.seenAt && m.seq >= this.probe.seq) this.probe.seenAt = this.cur.at;
+      if (this.probe && !this.probe.receivedAt && m.seq >= this.probe.seq) {
+        this.probe.receivedAt = this.cur.at;
+        if (this.ready) {  // drawn at once, not at the display's next frame
+          this.draw(performance.now());
+          this.probe.drawnAt = performance.now();
+        }
+        this.measureIfDone();
+      }
       if (m.collisions > this.collisions) this.flashCollision();
       this.collisions = m.collisions;
+    } else if (m.type === "timing") {
+      if (this.probe && !this.probe.server && m.seq >= this.probe.seq) this.probe.server = m;
+      this.measureIfDone();
+    } else if (m.type === "preparing") {
+      this.cockpit.waiting(m.done);
     } else if (m.type === "ready") {
       this.egoLanes = m.ego_lanes;
       this.cockpit.minimap.setRoute(m.ego_lanes);
+      this.ready = true;
+      this.cockpit.waiting(null);
       this.countdown(COUNTDOWN_S);
     } else if (m.type === "end") {
       this.finish(m);
@@ -153,16 +204,44 @@ class Ride {
     const pedal = throttle ? "throttle" : "brake";
     this.keyPedals[pedal] = event.type === "keydown" ? Math.max(this.keyPedals[pedal], PEDAL_PRESS_START) : 0;
     this.combinePedals();
-    this.sendPedals(true);
+    this.sendPedals(event.timeStamp);
   }
 
-  sendPedals(probe) {
+  /** Send the pedals; `eventAt` (the key event's time) measures this input. */
+  sendPedals(eventAt = null) {
     if (!this.started || this.over) return;
     this.seq += 1;
     const now = performance.now();
     this.send({ type: "input", seq: this.seq, throttle: this.pedals.throttle, brake: this.pedals.brake });
     this.sent = { throttle: this.pedals.throttle, brake: this.pedals.brake, at: now };
-    if (probe) this.probe = { seq: this.seq, t: now, seenAt: null };
+    if (eventAt !== null) {
+      this.probe = { seq: this.seq, eventAt: Math.min(eventAt, now), sentAt: now,
+        receivedAt: null, drawnAt: null, server: null };
+    }
+  }
+
+  /** The input-to-frame latency of the probe, part by part (ms), once it
+   * was drawn: the browser's event handling, the WebSocket both ways (with
+   * the wait for the page's thread), the server's parts, the drawing. */
+  measureIfDone(now = performance.now()) {
+    const p = this.probe;
+    if (p && p.drawnAt && (p.server || now - p.drawnAt > 1000)) this.measure();
+  }
+
+  measure() {
+    const p = this.probe, drawnAt = p.drawnAt;
+    const total = drawnAt - p.eventAt;
+    const record = { seq: p.seq, total, event: p.sentAt - p.eventAt, draw: drawnAt - p.receivedAt };
+    if (p.server) {
+      const parts = ["relay_in", "wait", "sumo", "frame", "relay_out"];
+      let inServer = 0;
+      for (const part of parts) { record[part] = p.server[part]; inServer += p.server[part] || 0; }
+      record.websocket = p.receivedAt - p.sentAt - inServer;
+    }
+    const kept = (window.studyLatency = window.studyLatency || []);
+    if (kept.length < LATENCY_KEPT) kept.push(record);
+    this.send({ type: "latency", seq: p.seq, ms: Math.min(60000, total) });
+    this.probe = null;
   }
 
   updatePedals(dt) {
@@ -176,7 +255,7 @@ class Ride {
     this.combinePedals();
     const moved = Math.abs(this.pedals.throttle - this.sent.throttle) > 0.02
       || Math.abs(this.pedals.brake - this.sent.brake) > 0.02;
-    if (moved && performance.now() - this.sent.at >= SEND_EVERY_MS) this.sendPedals(false);
+    if (moved && performance.now() - this.sent.at >= SEND_EVERY_MS) this.sendPedals();
   }
 
   combinePedals() {
@@ -217,27 +296,33 @@ class Ride {
     const dt = Math.min(0.1, (now - this.lastTick) / 1000);
     this.lastTick = now;
     this.updatePedals(dt);
+    if (this.ready) {  // else the waiting screen covers the view
+      this.cockpit.adaptResolution(dt * 1000);
+      this.draw(now);
+      if (this.probe && this.probe.receivedAt && !this.probe.drawnAt) this.probe.drawnAt = performance.now();
+      this.measureIfDone(now);
+    }
+    requestAnimationFrame((t) => this.tick(t));
+  }
+
+  /** Draw the view, the dashboard and the map as of `now`. */
+  draw(now) {
     const c = this.cockpit;
     let cars = [], ego = null;
     if (this.cur) ({ cars, ego } = this.interpolated(now));
     c.showCars(cars);
-    if (ego) this.egoSeen = true;
-    const view = ego || (this.egoSeen ? this.lastView : c.entryView(this.egoLanes));
-    if (view) { placeDriverCamera(c.camera, view.x, view.y, view.angle); this.lastView = view; }
+    const view = ego || c.entryView(this.egoLanes);  // before each pass: at the entry
+    if (view) placeDriverCamera(c.camera, view.x, view.y, view.angle);
     c.renderer.render(c.scene, c.camera);
     drawSpeedometer(c.el.speedometer, ego ? ego.speed : 0);
     drawPedals(c.el.throttleBar, c.el.brakeBar, this.pedals.throttle, this.pedals.brake);
     c.minimap.draw(cars, ego);
     if (this.started && this.cur) {
-      const left = Math.max(0, this.info.ride_s - (this.cur.f.step + 1) * this.periodMs / 1000);
-      const waiting = !this.egoSeen;
-      this.status(waiting ? "Waiting to enter the road\u2026" : `${Math.ceil(left)} s left`);
+      const f = this.cur.f;
+      const left = Math.max(0, this.info.ride_s - (f.step + 1) * this.periodMs / 1000);
+      const pass = f.passes > 1 ? `Pass ${f.pass} of ${f.passes}: ` : "";
+      this.status(ego ? `${pass}${Math.ceil(left)} s left` : `${pass}entering the road\u2026`);
     }
-    if (this.probe && this.probe.seenAt) {
-      this.send({ type: "latency", seq: this.probe.seq, ms: Math.min(60000, now - this.probe.t) });
-      this.probe = null;
-    }
-    requestAnimationFrame((t) => this.tick(t));
   }
 
   flashCollision() {
@@ -253,6 +338,7 @@ class Ride {
     window.removeEventListener("keydown", this.onKey);
     window.removeEventListener("keyup", this.onKey);
     this.ws.onclose = null;
+    this.cockpit.waiting(null);
     if (this.ws.readyState === WebSocket.OPEN) this.ws.close(1000);
     this.resolve(summary);
   }
