@@ -159,7 +159,7 @@ class SumoParallelEnv(ParallelEnv):
         self.possible_agents = self._av_ids(self.schedule)
         self.controller.start_episode(self.schedule)
         self._start()
-        self.agents, self.arrival_s = [], {}
+        self.agents, self.arrival_s, self._traffic = [], {}, None
         self._advance_to_agents()
         return dict(self._obs), {a: {} for a in self.agents}
 
@@ -318,6 +318,10 @@ class SumoParallelEnv(ParallelEnv):
         AVs that lost their slot), until an AV is in the network or the run
         ends."""
         while True:
+            if self._traffic is not None:  # the controller's call without AVs
+                self.controller.command(
+                    self._libsumo, self._traffic, np.zeros(0), np.zeros(0)
+                )
             self._sumo_step()
             if self._finished():
                 self.agents, self._obs = [], {}
@@ -326,6 +330,3 @@ class SumoParallelEnv(ParallelEnv):
             self._observe()
             if self.agents:
                 return
-            self.controller.command(
-                self._libsumo, self._traffic, np.zeros(0), np.zeros(0)
-            )
