@@ -12,7 +12,8 @@ JAX environment's gymnax view (`jaxround.integrations.gymnax_env`):
 - observation: float32 (M, D + 1), one row per vehicle slot in SUMO's order:
   the observer's D numbers and, last, 1.0 where the slot holds an AV (0.0
   for human drivers and empty slots);
-- action: float32 (M, 2), one row per slot; rows of unmasked slots are ignored;
+- action: float32 (2M,), each slot's (2,) action row by row (an (M, 2)
+  array is taken as well); rows of unmasked slots are ignored;
 - reward: the sum of the AVs' rewards of the step;
 - terminated: every vehicle has left; truncated: the horizon and drain are over.
 
@@ -52,8 +53,8 @@ class SumoSharedPolicyEnv(gymnasium.Env):
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
         one = parallel.action_space("")
         self.action_space = spaces.Box(
-            np.tile(one.low, (self.slots, 1)),
-            np.tile(one.high, (self.slots, 1)),
+            np.tile(one.low, self.slots),
+            np.tile(one.high, self.slots),
             dtype=np.float32,
         )
         self._ids: list[str] = []
@@ -68,16 +69,18 @@ class SumoSharedPolicyEnv(gymnasium.Env):
     def step(
         self, action: np.ndarray
     ) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        """Send each AV's row of `action`, float (M, 2), and step SUMO.
+        """Send each AV's row of `action`, float (2M,) or (M, 2), and step SUMO.
 
         Raises:
-            ValueError: `action` is not (M, 2).
+            ValueError: `action` has another size.
         """
         action = np.asarray(action, np.float32)
-        if action.shape != self.action_space.shape:
+        if action.size != self.action_space.shape[0]:
             raise ValueError(
-                f"action of shape {action.shape}, expected {self.action_space.shape}"
+                f"action of shape {action.shape}, expected "
+                f"{self.action_space.shape} or ({self.slots}, 2)"
             )
+        action = action.reshape(self.slots, 2)
         agents = set(self.parallel.agents)
         actions = {vid: action[k] for k, vid in enumerate(self._ids) if vid in agents}
         _, rewards, _, truncations, _ = self.parallel.step(actions)

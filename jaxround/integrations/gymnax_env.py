@@ -14,10 +14,12 @@ How M vehicle slots sharing one policy fit gymnax's single-agent API:
   D numbers (`jaxround.envs.observe`) and, last, the slot's mask (1.0 where
   the slot holds an AV, which the action drives; 0.0 for human drivers and
   empty slots). A shared policy maps each row to the row of its action.
-- action: float (M, 2) per slot, as `RoundaboutEnv.step` takes it
-  (``agent.action: accel``: acceleration in [-decel, accel] m/s^2 and the
-  lane-change flag; ``assertiveness``: the raw assertiveness, bounded to
-  +-RAW_BOUND here). Rows of unmasked slots are ignored.
+- action: float (2M,), the (M, 2) per-slot action of `RoundaboutEnv.step`
+  row by row (``agent.action: accel``: acceleration in [-decel, accel] m/s^2
+  and the lane-change flag; ``assertiveness``: the raw assertiveness,
+  bounded to +-RAW_BOUND here); `step` takes the (M, 2) array as well. Flat,
+  so that a PureJaxRL script sizes its actor by ``action_space.shape[0]``
+  as for any Box; rows of unmasked slots are ignored.
 - reward: float (), the sum of the AV slots' rewards (the team's return; with
   ``agent.reward: system`` and ``share: 1`` it is minus the roundabout's
   cost). Each slot's own reward is ``info["slot_reward"]`` (M,), and
@@ -119,11 +121,12 @@ class RoundaboutGymnax(environment.Environment):
         """`RoundaboutEnv.step_env`, its per-slot reward summed.
 
         Args:
-            action: float (M, 2) per slot.
+            action: float (2M,) or (M, 2), per slot.
 
         Returns:
             (obs (M, D + 1), state, reward (), terminated (), info).
         """
+        action = jnp.reshape(action, (self.env.max_vehicles, self.env.action_size))
         obs, state, slot_reward, _, info = self.env.step_env(key, state, action, params)
         info = {
             "slot_reward": slot_reward,
@@ -151,12 +154,11 @@ class RoundaboutGymnax(environment.Environment):
         return spaces.Box(low, high, (m, d + 1), jnp.float32)
 
     def action_space(self, params: EnvParams | None = None) -> spaces.Box:
-        """float (M, 2): each row within `action_bounds`."""
+        """float (2M,): each slot's pair within `action_bounds`."""
         low, high = action_bounds(self.env, params or self.default_params)
-        shape = (self.env.max_vehicles, self.env.action_size)
-        return spaces.Box(
-            jnp.broadcast_to(low, shape), jnp.broadcast_to(high, shape), shape
-        )
+        m = self.env.max_vehicles
+        shape = (m * self.env.action_size,)
+        return spaces.Box(jnp.tile(low, m), jnp.tile(high, m), shape)
 
     def state_space(self, params: EnvParams) -> Any:
         raise NotImplementedError(

@@ -43,7 +43,8 @@ def trace(view: RoundaboutGymnax) -> dict[str, Any]:
     space = view.action_space(params)
 
     def env_reward(state, action, key):  # the environment's own, no view
-        return view.env.step_env(key, state, action, params)[2]
+        rows = action.reshape(SLOTS, 2)  # the flat action, row by row
+        return view.env.step_env(key, state, rows, params)[2]
 
     @jax.jit
     def loop(key: jax.Array) -> dict[str, Any]:
@@ -89,12 +90,16 @@ def test_spaces_say_the_shapes_and_the_bounds(view: RoundaboutGymnax) -> None:
     params = view.default_params
     obs_space, act_space = view.observation_space(params), view.action_space(params)
     assert obs_space.shape == (SLOTS, view.env.obs_size + 1)
-    assert act_space.shape == (SLOTS, 2)
+    assert act_space.shape == (SLOTS * 2,)
     action = act_space.sample(jax.random.PRNGKey(0))
     assert bool(act_space.contains(action))
-    assert not bool(act_space.contains(action.at[0, 0].set(99.0)))
-    np.testing.assert_allclose(act_space.low[0], [-params.vehicle.decel, 0.0])
-    np.testing.assert_allclose(act_space.high[0], [params.av.accel, 1.0])
+    assert not bool(act_space.contains(action.at[0].set(99.0)))
+    rows_low, rows_high = (
+        act_space.low.reshape(SLOTS, 2),
+        act_space.high.reshape(SLOTS, 2),
+    )
+    np.testing.assert_allclose(rows_low, [[-params.vehicle.decel, 0.0]] * SLOTS)
+    np.testing.assert_allclose(rows_high, [[params.av.accel, 1.0]] * SLOTS)
     obs = jnp.zeros(obs_space.shape).at[:, MASK_COLUMN].set(1.0)
     assert bool(obs_space.contains(obs))
     assert not bool(obs_space.contains(obs.at[0, MASK_COLUMN].set(2.0)))

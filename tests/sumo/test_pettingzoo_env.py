@@ -83,9 +83,10 @@ def test_the_gymnasium_view_for_one_shared_policy(env: SumoParallelEnv) -> None:
     with pytest.raises(ValueError, match="shape"):
         gym_env.step(np.zeros((SLOTS, 3), np.float32))
     total, done, steps = 0.0, False, 0
+    assert gym_env.action_space.shape == (SLOTS * 2,)
     while not done and steps < 40:
         obs, reward, terminated, truncated, info = gym_env.step(
-            np.zeros((SLOTS, 2), np.float32)
+            np.zeros((SLOTS, 2), np.float32)  # the rows, as the flat action holds them
         )
         assert reward == pytest.approx(sum(info["rewards"].values()))
         total += reward
