@@ -90,13 +90,20 @@ class PolicyController:
         av = cfg.drivers.av
         self.av_accel, self.av_decel = av.accel, av.decel
         self.av_tau, self.av_impatience = av.tau, av.impatience
-        self._retuned: dict[str, tuple[float, float]] = {}
         self._lanes_of_edge: dict[str, int] = {}
+        self.record_observations = False
+        self.start_episode(schedule)
+
+    def start_episode(self, schedule: Schedule) -> None:
+        """Forget the last run's commands and counts, and read `schedule`'s
+        vehicles from now on (the compiled observers stay)."""
+        self.sumo.use_schedule(schedule)
+        self.sumo.overflow_vehicle_steps = 0
+        self._retuned: dict[str, tuple[float, float]] = {}
         self._commanded: set[str] = set()
         self._times: dict[str, list[int]] = {k: [] for k in PHASES}
         self.commands = 0
         self.lane_changes = 0
-        self.record_observations = False
         self.last_obs: np.ndarray | None = None
         self.last_traffic: SumoTraffic | None = None
 

@@ -3,19 +3,18 @@
 libsumo holds one simulation per process, so each run happens in a worker
 process; `run_many` runs several side by side. A controller, called after
 every step, can drive vehicles (`sumo_export.controller.PolicyController`);
-`run_many` builds one per run inside its worker from a picklable factory.
+`run_many` builds one per run inside its worker from a picklable factory,
+in a local process pool or on a Ray cluster (`sumo_export.executors`).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import multiprocessing
 import os
 import tempfile
 import time
 import xml.etree.ElementTree as ET
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -26,6 +25,7 @@ from jaxround.scenario.config import DRAIN_S, ScenarioConfig
 from jaxround.scenario.edges import in_edge
 from jaxround.scenario.records import VehicleRecords
 from jaxround.scenario.schedule import Schedule
+from sumo_export.executors import sumo_pool
 from sumo_export.scenario import vehicle_id, write_scenario
 
 #: Called as ``controller(libsumo, time_s)`` after every SUMO step.
@@ -202,6 +202,7 @@ def run_many(
     workers: int | None = None,
     progress: Callable[[SumoRun], None] | None = None,
     controller: ControllerFactory | None = None,
+    executor: str | None = None,
 ) -> list[SumoRun]:
     """Run several schedules, each in its own SUMO process, in parallel.
 
@@ -213,13 +214,14 @@ def run_many(
         controller: builds each run's controller in its worker process
             (e.g. `sumo_export.controller.PolicyControllerFactory`); None
             leaves every vehicle to SUMO.
+        executor: "local" (a process pool) or "ray"; None: the process's
+            choice (`sumo_export.executors.use_executor`, "local" by default).
 
     Returns:
         One `SumoRun` per schedule, in the order given.
     """
     workers = workers or min(len(schedules), os.cpu_count() or 1)
-    ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=max(1, workers), mp_context=ctx) as pool:
+    with sumo_pool(workers, executor) as pool:
         futures = [pool.submit(_run_job, (cfg, s, controller)) for s in schedules]
         results = []
         for fut in futures:

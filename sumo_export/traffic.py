@@ -103,11 +103,6 @@ class SumoObserver:
             raise ValueError(
                 f"observer {observer!r}, expected one of {sorted(OBSERVATION_SIZES)}"
             )
-        if schedule.n_vehicles != cfg.demand.n_vehicles:
-            raise ValueError(
-                f"schedule has {schedule.n_vehicles} vehicles, the scenario "
-                f"{cfg.demand.n_vehicles}"
-            )
         cfg = dataclasses.replace(
             cfg, agent=dataclasses.replace(cfg.agent, observer=observer)
         )
@@ -116,12 +111,7 @@ class SumoObserver:
         net = self.env.network
         self._lane_index = {lane: k for k, lane in enumerate(net.lane_ids)}
         self._lane_offset = net.lane_offset
-        route = net.route_index[schedule.origin, schedule.destination]
-        # per SUMO id: (route, is_av)
-        self._vehicles = {
-            vehicle_id(i): (int(r), bool(a))
-            for i, (r, a) in enumerate(zip(route, schedule.is_av, strict=True))
-        }
+        self.use_schedule(schedule)
         self.slot_sizes = slot_sizes(self.env.max_vehicles)
         self._observers = {
             size: observation_function(
@@ -136,6 +126,27 @@ class SumoObserver:
     @property
     def max_slots(self) -> int:
         return self.env.max_vehicles
+
+    def use_schedule(self, schedule: Schedule) -> None:
+        """Read the vehicles of `schedule` from now on (routes and classes by
+        SUMO id); the compiled observers stay.
+
+        Raises:
+            ValueError: the schedule has another number of vehicles than the
+                scenario.
+        """
+        n = self.env.n_schedule
+        if schedule.n_vehicles != n:
+            raise ValueError(
+                f"schedule has {schedule.n_vehicles} vehicles, the scenario {n}"
+            )
+        net = self.env.network
+        route = net.route_index[schedule.origin, schedule.destination]
+        # per SUMO id: (route, is_av)
+        self._vehicles = {
+            vehicle_id(i): (int(r), bool(a))
+            for i, (r, a) in enumerate(zip(route, schedule.is_av, strict=True))
+        }
 
     def read(self, libsumo: Any) -> SumoTraffic:
         """The vehicles in the network after a step, in slots (SUMO's id order).

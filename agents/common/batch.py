@@ -38,12 +38,14 @@ BATCH_AXIS = "batch"
 
 
 def batch_sharding(n_envs: int) -> NamedSharding:
-    """Sharding of arrays whose first axis is the roundabout batch, over local devices.
+    """Sharding of arrays whose first axis is the roundabout batch, over every
+    device: the local ones, and those of the other processes after
+    `jax.distributed.initialize` (`agents.run.distributed`).
 
     Raises:
         ConfigError: `n_envs` is not a multiple of the number of devices.
     """
-    devices = jax.local_devices()
+    devices = jax.devices()
     if n_envs % len(devices):
         raise ConfigError(
             f"n_envs: {n_envs} roundabouts cannot be split evenly over "

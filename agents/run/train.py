@@ -23,6 +23,9 @@ by such callbacks, called in this order:
   ``learning_curves.png`` redrawn;
 - then the caller's `progress_fns`.
 
+With several processes (`agents.run.distributed`) only process 0 writes
+the CSV files, the curves and the policy, and shows the bar.
+
 At the end the policy is exported (``policy.npz`` + ``policy.json``). A
 resumed run restarts from the last checkpoint and cuts both CSVs back to it,
 so a kill loses at most one checkpoint interval and the curve has no
@@ -46,6 +49,7 @@ from agents.common.export import POLICY_STEM, export_policy, policy_layout
 from agents.run.algorithms import algorithm_of, compiled_trainer, csv_columns
 from agents.run.checkpoints import CheckpointSaver, open_checkpoints, restore
 from agents.run.curves import plot_learning_curves, updates_per_episode
+from agents.run.distributed import is_primary
 from agents.run.metrics_csv import CsvLog
 from agents.run.progress_bar import ProgressBar
 
@@ -91,6 +95,7 @@ def train_to_dir(
         path}``.
     """
     out = Path(out).absolute()
+    primary = is_primary()  # the process that writes files (agents.run.distributed)
     n_updates = config.num_updates
     algo = algorithm_of(config)
     trainer, init, update = compiled_trainer(config)
@@ -112,16 +117,18 @@ def train_to_dir(
         algo.curves,
         algo.name,
     )
-    bar = ProgressBar(n_updates, start) if progress else None
+    bar = ProgressBar(n_updates, start) if progress and primary else None
     callbacks: list[ProgressFn] = [
-        CsvLog(out, csv_columns(config), start),
+        *([CsvLog(out, csv_columns(config), start)] if primary else []),
         *([bar] if bar is not None else []),
-        # `lambda: runner` reads the loop's latest runner when it is called
+        # `lambda: runner` reads the loop's latest runner when it is called;
+        # every process takes part in a checkpoint
         CheckpointSaver(
-            manager, lambda: runner, config.checkpoint_every, n_updates, draw_curves
+            manager, lambda: runner, config.checkpoint_every, n_updates,
+            draw_curves if primary else (lambda: None),
         ),
         *progress_fns,
-    ]
+    ]  # fmt: skip
     rates: list[float] = []
     last: dict[str, Any] = {}
     try:
@@ -152,7 +159,7 @@ def train_to_dir(
         "last": last,
         "policy": None,
     }
-    if done == n_updates:
+    if done == n_updates and primary:
         npz, _ = export_policy(
             jax.device_get(runner.params), policy_layout(trainer), out / POLICY_STEM
         )

@@ -41,6 +41,7 @@ from tqdm import tqdm
 from jaxround.analysis.compare import paired_difference
 from jaxround.analysis.headroom_plot import plot, table
 from jaxround.analysis.metrics import class_metrics
+from jaxround.apps.cli.arguments import workers_option
 from jaxround.envs.observe import rich_observation
 from jaxround.envs.rollout import run_until_left, vehicle_records
 from jaxround.envs.roundabout import make
@@ -303,8 +304,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--out", required=True, help="folder for the results")
     parser.add_argument("--config", default="milan", help="scenario (default milan)")
     parser.add_argument("--seeds", type=int, nargs="+", default=list(EVAL_SEEDS))
-    parser.add_argument("--workers", type=int, default=None)
+    workers_option(parser)
     args = parser.parse_args(argv)
+    if args.executor != "local":
+        from sumo_export.executors import use_executor
+
+        use_executor(args.executor)
     if min(args.seeds) < 100:
         parser.error("--seeds: evaluation seeds must be >= 100 (training uses 0-99)")
     out = Path(args.out)

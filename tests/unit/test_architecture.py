@@ -28,6 +28,12 @@ ALLOWED = {
         "jaxround.sumo_files",
         "jaxround.envs",
     },  # fmt: skip
+    "jaxround.integrations": {
+        "jaxround.scenario",
+        "jaxround.core",
+        "jaxround.sumo_files",
+        "jaxround.envs",
+    },  # fmt: skip
 }
 
 

@@ -100,12 +100,20 @@ def print_json(obj: object) -> None:
 
 
 def workers_option(p: argparse.ArgumentParser) -> None:
-    """--workers: SUMO processes side by side."""
+    """--workers: SUMO processes side by side; --executor: where they run."""
     p.add_argument(
         "--workers",
         type=positive_int,
         default=None,
         help="SUMO processes side by side (default: CPUs)",
+    )
+    p.add_argument(
+        "--executor",
+        choices=("local", "ray"),
+        default="local",
+        help="where the SUMO runs go: a local process pool (default) or a Ray "
+        "cluster (RAY_ADDRESS, else a local one of --workers CPUs; "
+        'pip install "jaxround[ray]")',
     )
 
 

@@ -33,11 +33,25 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
+        use_executor_of(args)
         args.func(args)
     except (ConfigError, UsageError) as err:
         print(f"jaxround {args.command}: error: {err}", file=sys.stderr)
         return 2
     return 0
+
+
+def use_executor_of(args: argparse.Namespace) -> None:
+    """Send this command's SUMO runs where ``--executor`` says, checked before
+    any work (`sumo_export.executors`)."""
+    if getattr(args, "executor", "local") == "local":
+        return
+    from sumo_export.executors import use_executor
+
+    try:
+        use_executor(args.executor)
+    except ValueError as err:
+        raise UsageError(f"--executor: {err}") from None
 
 
 if __name__ == "__main__":

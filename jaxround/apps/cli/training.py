@@ -94,6 +94,7 @@ def cmd_train(args: argparse.Namespace) -> None:
         train_to_dir,
     )
 
+    primary = join_processes(args)
     overrides: dict[str, int] = {}
     if args.seed is not None:
         overrides["seed"] = args.seed
@@ -134,9 +135,15 @@ def cmd_train(args: argparse.Namespace) -> None:
         algo = args.algo or "ppo"
         cfg = load_trainer_config(ALGORITHMS[algo].config, args.config)
         cfg = cfg.replace(**overrides) if overrides else cfg
-        out = fresh_output_dir(args.out, args.force, RUN_FILES)
-        clear_run(out)
-        (out / "config.yaml").write_text(cfg.to_yaml())
+        out = args.out
+        if primary:
+            out = fresh_output_dir(args.out, args.force, RUN_FILES)
+            clear_run(out)
+            (out / "config.yaml").write_text(cfg.to_yaml())
+    if args.num_processes > 1:  # the others wait for the folder
+        from jax.experimental.multihost_utils import sync_global_devices
+
+        sync_global_devices("jaxround train: run folder ready")
     enable_compilation_cache()
     say = (
         (lambda msg: None)
@@ -167,6 +174,24 @@ def cmd_train(args: argparse.Namespace) -> None:
     print(f"wrote {out / 'metrics.csv'}, {out / 'learning_curves.png'}")
     if result["policy"]:
         print(f"policy: {result['policy']} (+ .json)")
+
+
+def join_processes(args: argparse.Namespace) -> bool:
+    """``--num-processes N``: join the other processes (`jax.distributed`),
+    checked before any work. Returns whether this process writes the files."""
+    if args.num_processes == 1:
+        if args.process_id or args.coordinator:
+            raise UsageError("--coordinator and --process-id need --num-processes > 1")
+        return True
+    if not args.coordinator:
+        raise UsageError("--num-processes > 1 needs --coordinator HOST:PORT")
+    from agents.run.distributed import initialize
+
+    try:
+        initialize(args.coordinator, args.num_processes, args.process_id)
+    except ValueError as err:
+        raise UsageError(str(err)) from None
+    return args.process_id == 0
 
 
 def cmd_evaluate(args: argparse.Namespace) -> None:
@@ -291,6 +316,18 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     )  # fmt: skip
     p.add_argument("--force", action="store_true", help="overwrite an earlier run")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--num-processes", type=positive_int, default=1,
+        help="train over this many processes (jax.distributed; n_envs is the "
+        "batch of all of them)",
+    )  # fmt: skip
+    p.add_argument(
+        "--process-id", type=non_negative_int, default=0,
+        help="this process's number, 0 .. N-1 (process 0 writes the files)",
+    )  # fmt: skip
+    p.add_argument(
+        "--coordinator", default=None, help="HOST:PORT where process 0 listens"
+    )
     p.set_defaults(func=cmd_train)
 
     p = sub.add_parser(
