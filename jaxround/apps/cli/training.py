@@ -148,10 +148,15 @@ def cmd_train(args: argparse.Namespace) -> None:
         f"{algo.upper()}: {cfg.num_updates} updates of {cfg.n_envs} x {steps} env "
         f"steps ({cfg.scenario}, {cfg.demand_window_s:g} s of demand), into {out}"
     )
-    result = train_to_dir(
-        cfg, out, resume=args.resume is not None, progress=not args.no_progress,
-        say=say,
-    )  # fmt: skip
+    from agents.run.checkpoints import CheckpointMismatchError
+
+    try:
+        result = train_to_dir(
+            cfg, out, resume=args.resume is not None, progress=not args.no_progress,
+            say=say,
+        )  # fmt: skip
+    except CheckpointMismatchError as err:
+        raise UsageError(f"--resume {out}: {err}") from None
     rate = result["env_steps_per_s"]
     last = result["last"]
     print(
