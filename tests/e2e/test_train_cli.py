@@ -17,6 +17,7 @@ import pytest
 import yaml
 
 from agents.common.config import load_ppo_config
+from agents.common.evaluation import DRIVERS
 from agents.run import train_to_dir
 from agents.run.algorithms import CSV_COLUMNS
 from agents.run.metrics_csv import read_csv
@@ -211,6 +212,33 @@ def test_evaluate_json(
     # every run went on until its vehicles had left, as in SUMO, within the cap
     horizon = load_config(scenario).demand.duration_s
     assert report["cap_s"] == horizon + DRAIN_S and report["jax_not_arrived"] == 0
+    assert report["outside_at_cap"] == [] and report["score_scale"] == "sweep"
+    assert "one scale" in (out / "jax_policy_table4.md").read_text()
+
+
+def test_evaluate_compares_the_same_vehicles(
+    first_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """No time to drain: the runs leave vehicles outside at the cap, the
+    command names them, and policy and baseline are means over the same
+    vehicles (those arrived in both)."""
+    scenario = small_scenario(tmp_path)
+    args = [
+        "evaluate", "--policy", str(first_run), "--config", str(scenario),
+        "--penetrations", "50", "--max-vehicles", "16", "--drain-s", "0",
+        "--score-scale", "run", "--json",
+    ]  # fmt: skip
+    assert main(args) == 0
+    captured = capsys.readouterr()
+    report = json.loads(captured.out)
+    assert report["cap_s"] == load_config(scenario).demand.duration_s
+    assert report["jax_not_arrived"] > 0 and report["score_scale"] == "run"
+    assert "vehicles still outside at the cap" in captured.err
+    for r in report["outside_at_cap"]:
+        assert f"{r['driver']} 50% AVs seed 0: {r['not_arrived']}" in captured.err
+    policy, baseline = (report["results"][d]["50"]["all"] for d in DRIVERS)
+    assert policy["n_compared"] == baseline["n_compared"] > 0
+    assert policy["n_compared"] <= min(policy["n_arrived"], baseline["n_arrived"])
 
 
 def test_evaluate_refuses(
