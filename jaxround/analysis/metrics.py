@@ -95,13 +95,16 @@ def class_metrics(
         records: one run.
         horizon_s: the demand horizon (throughput counts arrivals before it).
         compared: bool (N,) the vehicles the means (crossing time, CO2, fuel,
-            scores) are taken over, those arrived in every run compared
-            (`arrived_in_all`); None: this run's arrived vehicles.
+            scores, insertion delay) are taken over, those arrived in every
+            run compared (`arrived_in_all`); None: this run's arrived
+            vehicles (its departed ones for the insertion delay).
         scale: Eq. 5's bounds (`sweep_scale`); None: this run's own.
 
     Raises:
         ValueError: `compared` holds a vehicle that did not arrive.
     """
+    # insertion delays over the departed vehicles, or the compared ones
+    delayed = records.departed if compared is None else compared
     if compared is None:
         compared = records.arrived
     elif np.any(compared & ~records.arrived):
@@ -134,7 +137,7 @@ def class_metrics(
             "emission_score": _mean(emission[mean_over]),
             "throughput_veh_per_h": float(in_horizon.sum() * 3600.0 / horizon_s),
             "mean_insertion_delay_s": _mean(
-                (records.depart_s - records.scheduled_depart_s)[departed]
+                (records.depart_s - records.scheduled_depart_s)[mask & delayed]
             ),
         }
     out["all"]["queue_mean_veh"] = [float(x) for x in records.queue_mean_veh]

@@ -90,6 +90,8 @@ def test_means_over_the_vehicles_arrived_in_every_run() -> None:
     assert mb["all"]["mean_crossing_time_s"] == pytest.approx(32.5)
     assert ma["hv"]["co2_g_per_veh"] == pytest.approx(90.0)
     assert ma["all"]["n_compared"] == mb["all"]["n_compared"] == 2
+    # insertion delays over the same two: vehicle 1 waited 2 s, vehicle 2 none
+    assert ma["all"]["mean_insertion_delay_s"] == pytest.approx(1.0)
     assert (ma["all"]["n_arrived"], mb["all"]["n_arrived"]) == (3, 2)
     assert (ma["all"]["n_not_arrived"], mb["all"]["n_not_arrived"]) == (1, 2)
     with pytest.raises(ValueError, match="must have arrived"):
