@@ -51,9 +51,9 @@ def restore_newest_intact(
     restored after such a line is named too.
 
     Raises:
-        CheckpointMismatchError: a checkpoint whose arrays are readable holds other
-            names or shapes than `like` (the run folder's config does not
-            build the runner its checkpoints were saved from).
+        CheckpointMismatchError: a checkpoint's tree metadata names other
+            arrays or shapes than `like` has (the run folder's config does
+            not build the runner its checkpoints were saved from).
     """
     folder = Path(manager.directory)
     skipped = False
