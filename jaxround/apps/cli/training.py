@@ -78,6 +78,7 @@ def cmd_run(args: argparse.Namespace) -> None:
         cfg, out, seeds, penetrations, train_cfg, workers=args.workers,
         progress=not args.no_progress, say=say,
     )  # fmt: skip
+    warn_outside_at_cap(result, "run")
     print(result["tables"])
     print(headline(result))
     print(
