@@ -14,6 +14,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from jaxround.analysis.metrics import (
+    SCORE_SCALES,
     ScoreScale,
     arrived_in_all,
     class_metrics,
@@ -93,7 +94,12 @@ def compare_drivers(
 
     Returns:
         ``{driver: {penetration: summarise_runs(...)}}``.
+
+    Raises:
+        ValueError: an unknown `score_scale`.
     """
+    if score_scale not in SCORE_SCALES:
+        raise ValueError(f"score_scale {score_scale!r}, expected one of {SCORE_SCALES}")
     drivers = list(runs)
     first = runs[drivers[0]]
     compared = {

@@ -26,6 +26,7 @@ from agents.common.export import (
     policy_action,
 )
 from jaxround.analysis.metrics import (
+    SCORE_SCALES,
     arrived_in_all,
     class_metrics,
     mean_over_runs,
@@ -114,8 +115,10 @@ def evaluate_policy(
 
     Raises:
         ValueError: the policy reads other observations than the environment
-            gives.
+            gives, or an unknown `score_scale`.
     """
+    if score_scale not in SCORE_SCALES:
+        raise ValueError(f"score_scale {score_scale!r}, expected one of {SCORE_SCALES}")
     arrays, layout = load_policy(policy_path)
     check_scenario(layout, cfg)
     cfg = with_observer(cfg, layout.observer, layout.action)
