@@ -25,7 +25,10 @@ def open_checkpoints(folder: Path, keep: int) -> Any:
     import orbax.checkpoint as ocp
 
     options = ocp.CheckpointManagerOptions(max_to_keep=keep, create=True)
-    return ocp.CheckpointManager(folder, options=options)
+    # orbax logs an unreadable step metadata file here already; resuming says
+    # it once (`restore_newest_intact`)
+    with quiet_orbax():
+        return ocp.CheckpointManager(folder, options=options)
 
 
 def restore(manager: Any, step: int, like: Any) -> Any:
