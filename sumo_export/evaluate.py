@@ -13,8 +13,15 @@ from typing import Any
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaxround.analysis.metrics import class_metrics, mean_over_runs
-from jaxround.scenario.config import ScenarioConfig
+from jaxround.analysis.metrics import (
+    SCORE_SCALES,
+    ScoreScale,
+    arrived_in_all,
+    class_metrics,
+    mean_over_runs,
+    sweep_scale,
+)
+from jaxround.scenario.config import DRAIN_S, ScenarioConfig
 from jaxround.scenario.schedule import make_schedule
 from sumo_export.controller import PHASES, PolicyControllerFactory, policy_observer
 from sumo_export.runner import ControllerFactory, SumoRun, run_many
@@ -23,17 +30,36 @@ from sumo_export.traffic import DEFAULT_SLOTS
 SAFETY_KEYS = ("collisions", "emergency_brakings", "teleports")
 
 
-def summarise_runs(cfg: ScenarioConfig, runs: Sequence[SumoRun]) -> dict[str, Any]:
+def summarise_runs(
+    cfg: ScenarioConfig,
+    runs: Sequence[SumoRun],
+    *,
+    compared: Sequence[np.ndarray] | None = None,
+    scale: ScoreScale | None = None,
+) -> dict[str, Any]:
     """The `jaxround sumo` JSON of several runs of one penetration.
+
+    Args:
+        cfg: the scenario.
+        runs: one per seed.
+        compared: per run, bool (N,) the vehicles its means are over (those
+            arrived in every run compared, `compare_drivers`); None: each
+            run's own arrivals.
+        scale: Eq. 5's bounds (`jaxround.analysis.metrics.sweep_scale`); None:
+            each run's own ("score_scale" says which).
 
     Returns:
         ``{"per_seed": [...], "mean": {"all": M, "hv": M, "av": M,
-        "collisions": n, "emergency_brakings": n, "teleports": n}}``; the three
-        counters in "mean" are totals over the seeds.
+        "collisions": n, "emergency_brakings": n, "teleports": n,
+        "score_scale": "sweep" | "run", "not_arrived": n}}``; the counters
+        in "mean" are totals over the seeds.
     """
     per_seed = []
-    for run in runs:
-        entry = class_metrics(run.records, cfg.demand.duration_s)
+    for i, run in enumerate(runs):
+        entry = class_metrics(
+            run.records, cfg.demand.duration_s,
+            compared=None if compared is None else compared[i], scale=scale,
+        )  # fmt: skip
         entry.update({k: getattr(run, k) for k in SAFETY_KEYS})
         entry["sim_end_s"] = run.sim_end_s
         entry["wall_s"] = run.wall_s
@@ -44,10 +70,54 @@ def summarise_runs(cfg: ScenarioConfig, runs: Sequence[SumoRun]) -> dict[str, An
     mean = dict(classes)
     for key in SAFETY_KEYS:
         mean[key] = int(sum(e[key] for e in per_seed))
+    mean["not_arrived"] = int(sum(e["all"]["n_not_arrived"] for e in per_seed))
+    mean["score_scale"] = "run" if scale is None else "sweep"
     reports = [r.controller_report for r in runs if r.controller_report is not None]
     if reports:
         mean["controller"] = controller_summary(reports)
     return {"per_seed": per_seed, "mean": mean}
+
+
+def compare_drivers(
+    cfg: ScenarioConfig,
+    runs: dict[str, dict[float, list[SumoRun]]],
+    score_scale: str = "sweep",
+) -> dict[str, dict[float, dict[str, Any]]]:
+    """`summarise_runs` of several drivers on the same schedules, compared over
+    the same vehicles: each (penetration, seed)'s means are over the vehicles
+    that arrived in the run of every driver.
+
+    Args:
+        runs: ``{driver: {penetration: [SumoRun per seed]}}``, the same
+            penetrations and seeds for every driver.
+        score_scale: "sweep" (Eq. 5 over every run given) or "run".
+
+    Returns:
+        ``{driver: {penetration: summarise_runs(...)}}``.
+
+    Raises:
+        ValueError: an unknown `score_scale`.
+    """
+    if score_scale not in SCORE_SCALES:
+        raise ValueError(f"score_scale {score_scale!r}, expected one of {SCORE_SCALES}")
+    drivers = list(runs)
+    first = runs[drivers[0]]
+    compared = {
+        p: [
+            arrived_in_all(runs[d][p][i].records for d in drivers)
+            for i in range(len(first[p]))
+        ]
+        for p in first
+    }
+    every = [r.records for by_p in runs.values() for rs in by_p.values() for r in rs]
+    scale = sweep_scale(every) if score_scale == "sweep" else None
+    return {
+        d: {
+            p: summarise_runs(cfg, rs, compared=compared[p], scale=scale)
+            for p, rs in by_p.items()
+        }
+        for d, by_p in runs.items()
+    }
 
 
 def controller_summary(reports: Sequence[dict[str, Any]]) -> dict[str, Any]:
@@ -96,6 +166,7 @@ def sumo_runs(
     show_progress: bool = True,
     controller: ControllerFactory | None = None,
     desc: str = "SUMO runs",
+    drain_s: float = DRAIN_S,
 ) -> dict[float, list[SumoRun]]:
     """Run every (penetration, seed) schedule in SUMO, several processes at once.
 
@@ -108,6 +179,7 @@ def sumo_runs(
         controller: drives the AVs of every run (built in each worker, see
             `sumo_export.runner.run_many`); None leaves them to their vType.
         desc: the progress bar's label.
+        drain_s: seconds after the demand horizon a run may go on.
 
     Returns:
         ``{penetration: [SumoRun per seed]}`` in the order given.
@@ -118,7 +190,7 @@ def sumo_runs(
     bar = tqdm(total=len(jobs), desc=desc, unit="run", disable=not show_progress)
     runs = run_many(
         cfg, schedules, workers=workers, progress=lambda _: bar.update(),
-        controller=controller,
+        controller=controller, drain_s=drain_s,
     )  # fmt: skip
     bar.close()
     return {
@@ -134,10 +206,12 @@ def sumo_sweep(
     workers: int | None = None,
     show_progress: bool = True,
     controller: ControllerFactory | None = None,
+    score_scale: str = "sweep",
 ) -> dict[float, dict[str, Any]]:
-    """`sumo_runs`, summarised: ``{penetration: summarise_runs(...)}``."""
+    """`sumo_runs`, summarised: ``{penetration: summarise_runs(...)}``, Eq. 5
+    on one scale over the sweep ("sweep") or each run's own ("run")."""
     runs = sumo_runs(cfg, penetrations, seeds, workers, show_progress, controller)
-    return {p: summarise_runs(cfg, mine) for p, mine in runs.items()}
+    return compare_drivers(cfg, {"only": runs}, score_scale)["only"]
 
 
 def policy_controller(

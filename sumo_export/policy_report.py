@@ -30,6 +30,7 @@ from jaxround.analysis.report import (
     csv_table,
     markdown_table,
     percent_label,
+    score_scale_of,
     write_json,
     write_tables,
 )
@@ -110,6 +111,7 @@ def write_policy_report(
         curves,
         out / f"{PREFIX}.png",
         f"{cfg.name}: AVs driven by the policy, {seeds} seed(s)",
+        score_scale=score_scale_of(means),
     )
     write_json(
         {

@@ -56,6 +56,7 @@ def run_schedule(
     schedule: Schedule,
     workdir: str | Path | None = None,
     controller: Controller | None = None,
+    drain_s: float = DRAIN_S,
 ) -> SumoRun:
     """Run one schedule in SUMO in *this* process (libsumo: one run per process).
 
@@ -66,6 +67,8 @@ def run_schedule(
             folder if None.
         controller: called as ``controller(libsumo, time_s)`` after every step,
             e.g. to drive the AVs.
+        drain_s: seconds after the demand horizon the run may go on for its
+            last vehicles (the cap is the horizon plus this).
 
     Returns:
         A `SumoRun` with one record per scheduled vehicle.
@@ -81,7 +84,7 @@ def run_schedule(
         libsumo.start(args)
         try:
             started = time.perf_counter()
-            queues = _simulate(libsumo, cfg, schedule, controller)
+            queues = _simulate(libsumo, cfg, schedule, controller, drain_s)
             wall = time.perf_counter() - started
             sim_end = libsumo.simulation.getTime()
         finally:
@@ -119,11 +122,13 @@ def _simulate(
     cfg: ScenarioConfig,
     schedule: Schedule,
     controller: Controller | None,
+    drain_s: float,
 ) -> np.ndarray:
-    """Step until every vehicle has left; return queue lengths, shape (T, n_legs)."""
+    """Step until every vehicle has left or the cap (horizon + `drain_s`);
+    return queue lengths, shape (T, n_legs)."""
     n_legs = cfg.n_legs
     horizon = cfg.demand.duration_s
-    max_time = horizon + DRAIN_S
+    max_time = horizon + drain_s
     edges = [in_edge(i) for i in range(n_legs)]
     origin_of = {vehicle_id(i): int(o) for i, o in enumerate(schedule.origin)}
     samples = []
@@ -183,13 +188,13 @@ def _read_statistics(path: Path) -> tuple[int, int, int]:
 
 
 def _run_job(
-    job: tuple[ScenarioConfig, Schedule, ControllerFactory | None],
+    job: tuple[ScenarioConfig, Schedule, ControllerFactory | None, float],
 ) -> SumoRun:
-    cfg, schedule, factory = job
+    cfg, schedule, factory, drain_s = job
     if factory is None:
-        return run_schedule(cfg, schedule)
+        return run_schedule(cfg, schedule, drain_s=drain_s)
     controller = factory(cfg, schedule)
-    run = run_schedule(cfg, schedule, controller=controller)
+    run = run_schedule(cfg, schedule, controller=controller, drain_s=drain_s)
     report = getattr(controller, "report", None)
     if report is None:
         return run
@@ -203,6 +208,7 @@ def run_many(
     progress: Callable[[SumoRun], None] | None = None,
     controller: ControllerFactory | None = None,
     executor: str | None = None,
+    drain_s: float = DRAIN_S,
 ) -> list[SumoRun]:
     """Run several schedules, each in its own SUMO process, in parallel.
 
@@ -216,13 +222,15 @@ def run_many(
             leaves every vehicle to SUMO.
         executor: "local" (a process pool) or "ray"; None: the process's
             choice (`sumo_export.executors.use_executor`, "local" by default).
+        drain_s: as `run_schedule`'s.
 
     Returns:
         One `SumoRun` per schedule, in the order given.
     """
     workers = workers or min(len(schedules), os.cpu_count() or 1)
     with sumo_pool(workers, executor) as pool:
-        futures = [pool.submit(_run_job, (cfg, s, controller)) for s in schedules]
+        jobs = [(cfg, s, controller, drain_s) for s in schedules]
+        futures = [pool.submit(_run_job, job) for job in jobs]
         results = []
         for fut in futures:
             run = fut.result()

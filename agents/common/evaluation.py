@@ -25,7 +25,13 @@ from agents.common.export import (
     load_policy,
     policy_action,
 )
-from jaxround.analysis.metrics import class_metrics, mean_over_runs
+from jaxround.analysis.metrics import (
+    SCORE_SCALES,
+    arrived_in_all,
+    class_metrics,
+    mean_over_runs,
+    sweep_scale,
+)
 from jaxround.core.capacity import road_capacity
 from jaxround.core.state import EnvState
 from jaxround.envs.rollout import NO_COMMAND, Policy, run_until_left, vehicle_records
@@ -75,8 +81,14 @@ def evaluate_policy(
     seeds: Sequence[int],
     max_vehicles: int | str | None = None,
     keep_records: bool = False,
+    drain_s: float = DRAIN_S,
+    score_scale: str = "sweep",
 ) -> dict[str, Any]:
     """Run the policy and the uncontrolled baseline on every schedule.
+
+    The two are compared over the same vehicles: each schedule's means are
+    over the vehicles that arrived in both runs of it (the others counted
+    per run: ``n_not_arrived``, "outside_at_cap").
 
     Args:
         policy_path: the exported policy (``.npz``, ``.json``, stem or folder).
@@ -88,6 +100,10 @@ def evaluate_policy(
             are redone with more (`redo_on_overflow`).
         keep_records: also return each run's `VehicleRecords` under
             ``"records": {driver: {penetration: [per seed]}}`` (not JSON).
+        drain_s: simulated seconds after the demand horizon a run may go on
+            for its last vehicles (the cap is the horizon plus this).
+        score_scale: Eq. 5's min and max over every run here ("sweep") or
+            each run's own ("run").
 
     Returns:
         ``{"scenario", "seeds", "policy": path, "layout": {...},
@@ -95,21 +111,25 @@ def evaluate_policy(
         M run, "jax_slot_overflow": vehicle-steps over all runs (0 unless
         the road itself overflowed),
         "cap_s": the longest a run went on, "jax_not_arrived": vehicles
-        still in or waiting at the cap, over all runs,
+        still in or waiting at the cap, over all runs, "outside_at_cap":
+        [{"driver", "penetration", "seed", "not_arrived"}] of the runs that
+        left any, "score_scale",
         "results": {driver: {penetration: metrics}}}`` where metrics are
         `jaxround.analysis.metrics.class_metrics` averaged over seeds, plus
         ``collisions`` and ``slot_overflow`` (means over seeds).
 
     Raises:
         ValueError: the policy reads other observations than the environment
-            gives.
+            gives, or an unknown `score_scale`.
     """
+    if score_scale not in SCORE_SCALES:
+        raise ValueError(f"score_scale {score_scale!r}, expected one of {SCORE_SCALES}")
     arrays, layout = load_policy(policy_path)
     check_scenario(layout, cfg)
     cfg = with_observer(cfg, layout.observer, layout.action)
     # every run goes on until its vehicles have left, as SUMO's runs do, or
-    # to the same cap (the demand horizon plus DRAIN_S)
-    cap_s = cfg.demand.duration_s + DRAIN_S
+    # to the same cap (the demand horizon plus drain_s)
+    cap_s = cfg.demand.duration_s + drain_s
     env, params = make(cfg, max_vehicles=max_vehicles, episode_s=cap_s)
     obs, _ = jax.eval_shape(env.reset, jax.random.PRNGKey(0), params)
     if obs.shape[-1] != layout.obs_size:
@@ -146,19 +166,37 @@ def evaluate_policy(
         max_vehicles=env.max_vehicles, road=road_capacity(env.network, cfg),
         what="evaluate (JAX)",
     )  # fmt: skip
-    per_run: dict[tuple[str, float], list[dict[str, Any]]] = {}
-    overflow = not_arrived = 0
     records: dict[str, dict[float, list[Any]]] = {d: {} for d in DRIVERS}
-    horizon = cfg.demand.duration_s
+    finals = []
     for i, (driver, p, _) in enumerate(runs):
         state = jax.tree.map(lambda x, i=i: x[i], states)
-        rec = vehicle_records(env, state)
-        records[driver].setdefault(p, []).append(rec)
-        m = class_metrics(rec, horizon)
-        m["collisions"] = int(state.stats.collisions)
-        m["slot_overflow"] = int(state.stats.overflow)
+        records[driver].setdefault(p, []).append(vehicle_records(env, state))
+        finals.append(state.stats)
+    # the policy and the baseline over the same vehicles: those arrived in both
+    compared = {
+        (p, k): arrived_in_all(records[d][p][k] for d in DRIVERS)
+        for p in penetrations
+        for k in range(len(seeds))
+    }
+    every = [r for by_p in records.values() for rs in by_p.values() for r in rs]
+    scale = sweep_scale(every) if score_scale == "sweep" else None
+    per_run: dict[tuple[str, float], list[dict[str, Any]]] = {}
+    overflow = not_arrived = 0
+    outside: list[dict[str, Any]] = []
+    horizon = cfg.demand.duration_s
+    for i, (driver, p, seed) in enumerate(runs):
+        k = list(seeds).index(seed)
+        rec = records[driver][p][k]
+        m = class_metrics(rec, horizon, compared=compared[(p, k)], scale=scale)
+        m["collisions"] = int(finals[i].collisions)
+        m["slot_overflow"] = int(finals[i].overflow)
         overflow += m["slot_overflow"]
-        not_arrived += int(np.sum(~rec.arrived))
+        left = m["all"]["n_not_arrived"]
+        not_arrived += left
+        if left:
+            outside.append(
+                {"driver": driver, "penetration": p, "seed": seed, "not_arrived": left}
+            )
         per_run.setdefault((driver, p), []).append(m)
     result = {
         "scenario": cfg.name,
@@ -175,6 +213,8 @@ def evaluate_policy(
         "jax_slot_overflow": overflow,
         "cap_s": cap_s,
         "jax_not_arrived": not_arrived,
+        "outside_at_cap": outside,
+        "score_scale": score_scale,
         "results": {
             d: {p: mean_over_runs(per_run[(d, p)]) for p in penetrations}
             for d in DRIVERS

@@ -124,6 +124,7 @@ def export_policy(
             layer, leaf = name.split("/")
             arrays[name] = np.asarray(tree[layer][leaf])
     _check_shapes(arrays, layout, "params")
+    check_finite(arrays, "params")
     npz, js = policy_paths(path)
     npz.parent.mkdir(parents=True, exist_ok=True)
     np.savez(npz, **{k: v.astype(np.float32) for k, v in arrays.items()})
@@ -174,6 +175,7 @@ def load_policy(path: str | Path) -> tuple[dict[str, np.ndarray], PolicyLayout]:
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
         raise ValueError(f"{npz}: damaged or not a policy file ({err})") from None
     _check_shapes(arrays, layout, str(npz))
+    check_finite(arrays, str(npz))
     return arrays, layout
 
 
@@ -244,6 +246,24 @@ def load_policy_numpy(
     return act
 
 
+def check_finite(arrays: dict[str, Any], where: str) -> None:
+    """Refuse weights holding NaN or infinity (a diverged run's, or a damaged
+    file's): such a policy would drive nothing and look like no policy.
+
+    Raises:
+        ValueError: naming `where`, the first array with such values, and how
+            many it holds.
+    """
+    for name in sorted(arrays):
+        values = np.asarray(arrays[name])
+        bad = int(np.sum(~np.isfinite(values)))
+        if bad:
+            raise ValueError(
+                f"{where}: array {name!r} holds {bad} non-finite value(s) "
+                f"(NaN or infinity) of {values.size}; refusing the policy"
+            )
+
+
 def _check_shapes(arrays: dict[str, Any], layout: PolicyLayout, where: str) -> None:
     for name, shape in layout.array_shapes().items():
         if name not in arrays:
@@ -257,6 +277,7 @@ def _check_shapes(arrays: dict[str, Any], layout: PolicyLayout, where: str) -> N
 
 __all__ = [
     "FORMAT",
+    "check_finite",
     "check_scenario",
     "POLICY_STEM",
     "PolicyLayout",

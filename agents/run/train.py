@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import functools
 import shutil
+import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -47,7 +48,11 @@ import numpy as np
 from agents.common.config import TrainerConfig
 from agents.common.export import POLICY_STEM, export_policy, policy_layout
 from agents.run.algorithms import algorithm_of, compiled_trainer, csv_columns
-from agents.run.checkpoints import CheckpointSaver, open_checkpoints, restore
+from agents.run.checkpoints import (
+    CheckpointSaver,
+    open_checkpoints,
+    restore_newest_intact,
+)
 from agents.run.curves import plot_learning_curves, updates_per_episode
 from agents.run.distributed import is_primary
 from agents.run.metrics_csv import CsvLog
@@ -75,6 +80,7 @@ def train_to_dir(
     stop_after: int | None = None,
     say: Callable[[str], None] = print,
     progress_fns: Sequence[ProgressFn] = (),
+    warn: Callable[[str], None] = lambda msg: print(msg, file=sys.stderr),
 ) -> dict[str, Any]:
     """Train `config` into the folder `out` (see the module doc).
 
@@ -82,12 +88,18 @@ def train_to_dir(
         config: the run's settings (`PPOConfig` or `APGConfig`).
         out: the run's folder; it exists (with ``config.yaml``, written by
             the caller).
-        resume: continue from the last checkpoint in ``out/checkpoints``.
+        resume: continue from the newest intact checkpoint in
+            ``out/checkpoints`` (`restore_newest_intact`).
         progress: show a tqdm progress bar.
         stop_after: stop once this many updates are done (tests use it to
             imitate a killed run); no export then.
         say: where to print messages.
         progress_fns: more progress callbacks, called after the run's own.
+        warn: where to print what must be seen (a damaged checkpoint skipped).
+
+    Raises:
+        CheckpointMismatchError: the checkpoints hold another runner than
+            `config` builds (resume only).
 
     Returns:
         ``{"updates": done, "env_steps_per_s": mean over this session (first,
@@ -102,12 +114,17 @@ def train_to_dir(
     runner = init(jax.random.PRNGKey(config.seed))
     manager = open_checkpoints(out / "checkpoints", config.keep_checkpoints)
     start = 0
-    if resume and manager.latest_step() is not None:
-        start = int(manager.latest_step())
-        runner = restore(manager, start, runner)
-        say(f"resuming {out} at update {start} of {n_updates}")
-    elif resume:
-        say(f"no checkpoint in {out}: starting from update 0")
+    if resume:
+        try:
+            step, runner = restore_newest_intact(manager, runner, warn)
+        except Exception:
+            manager.close()
+            raise
+        if step is not None:
+            start = int(step)
+            say(f"resuming {out} at update {start} of {n_updates}")
+        else:
+            say(f"no intact checkpoint in {out}: starting from update 0")
 
     draw_curves = functools.partial(
         plot_learning_curves,

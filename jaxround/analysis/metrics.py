@@ -7,13 +7,18 @@ numbers of the paper's tables:
 - crossing time (Eq. 4): arrival minus scheduled departure, so the time a
   vehicle waits to be inserted behind a queue counts too;
 - consumption and emission scores (Eq. 5): fuel and CO2 per vehicle min-max
-  normalised over all vehicles of the run (both classes share the scale), then
-  averaged over the class;
+  normalised, then averaged over the class. The minimum and maximum are taken
+  over every run a table compares (`sweep_scale`, "sweep": one scale, so rows
+  of a sweep can be compared, the paper's reading) or over the run's own
+  vehicles (no `scale`, "run": both classes of the run share it, rows of
+  different runs do not);
 - CO2 and fuel in g per vehicle, arrivals, throughput, queue length per leg.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -21,37 +26,93 @@ import numpy as np
 from jaxround.scenario.records import VehicleRecords
 
 CLASSES = ("all", "hv", "av")
+#: Eq. 5's scales: one over every run compared, or each run its own.
+SCORE_SCALES = ("sweep", "run")
 
 
-def min_max_scores(values: np.ndarray) -> np.ndarray:
-    """The paper's Eq. 5 per vehicle: (x - min) / (max - min) over finite values.
+@dataclass(frozen=True)
+class ScoreScale:
+    """Eq. 5's (min, max) of fuel and of CO2 per vehicle, g."""
+
+    fuel_g: tuple[float, float]
+    co2_g: tuple[float, float]
+
+
+def sweep_scale(runs: Iterable[VehicleRecords]) -> ScoreScale | None:
+    """Eq. 5's minimum and maximum over the arrived vehicles of every run
+    (None if none arrived)."""
+    fuel, co2 = [], []
+    for records in runs:
+        fuel.append(records.fuel_g[records.arrived & np.isfinite(records.fuel_g)])
+        co2.append(records.co2_g[records.arrived & np.isfinite(records.co2_g)])
+    fuel_all, co2_all = np.concatenate(fuel or [[]]), np.concatenate(co2 or [[]])
+    if not fuel_all.size or not co2_all.size:
+        return None
+    return ScoreScale(
+        fuel_g=(float(fuel_all.min()), float(fuel_all.max())),
+        co2_g=(float(co2_all.min()), float(co2_all.max())),
+    )
+
+
+def min_max_scores(
+    values: np.ndarray, bounds: tuple[float, float] | None = None
+) -> np.ndarray:
+    """The paper's Eq. 5 per vehicle: (x - min) / (max - min).
 
     Args:
         values: float (N,), nan where a vehicle has no value.
+        bounds: (min, max) to use; None: those of the finite `values`.
 
     Returns:
-        float (N,) in [0, 1], nan where `values` is nan; all 0 when max == min.
+        float (N,), in [0, 1] when the bounds hold every value; nan where
+        `values` is nan; all 0 when max == min.
     """
     ok = np.isfinite(values)
     out = np.full(values.shape, np.nan)
     if not ok.any():
         return out
-    lo, hi = values[ok].min(), values[ok].max()
+    lo, hi = (values[ok].min(), values[ok].max()) if bounds is None else bounds
     out[ok] = (values[ok] - lo) / (hi - lo) if hi > lo else 0.0
     return out
 
 
-def class_metrics(records: VehicleRecords, horizon_s: float) -> dict[str, Any]:
+def class_metrics(
+    records: VehicleRecords,
+    horizon_s: float,
+    *,
+    compared: np.ndarray | None = None,
+    scale: ScoreScale | None = None,
+) -> dict[str, Any]:
     """Metrics per class: ``{"all": M, "hv": M, "av": M}``.
 
-    Each M has ``n_vehicles, n_departed, n_arrived, mean_crossing_time_s,
-    co2_g_per_veh, fuel_g_per_veh, consumption_score, emission_score,
-    throughput_veh_per_h, mean_insertion_delay_s``; "all" also has
-    ``queue_mean_veh`` and ``queue_max_veh`` (lists, one per leg). Means over
-    an empty class are None.
+    Each M has ``n_vehicles, n_departed, n_arrived, n_not_arrived, n_compared,
+    mean_crossing_time_s, co2_g_per_veh, fuel_g_per_veh, consumption_score,
+    emission_score, throughput_veh_per_h, mean_insertion_delay_s``; "all"
+    also has ``queue_mean_veh`` and ``queue_max_veh`` (lists, one per leg).
+    Means over an empty class are None.
+
+    Args:
+        records: one run.
+        horizon_s: the demand horizon (throughput counts arrivals before it).
+        compared: bool (N,) the vehicles the means (crossing time, CO2, fuel,
+            scores, insertion delay) are taken over, those arrived in every
+            run compared (`arrived_in_all`); None: this run's arrived
+            vehicles (its departed ones for the insertion delay).
+        scale: Eq. 5's bounds (`sweep_scale`); None: this run's own.
+
+    Raises:
+        ValueError: `compared` holds a vehicle that did not arrive.
     """
-    consumption = min_max_scores(np.where(records.arrived, records.fuel_g, np.nan))
-    emission = min_max_scores(np.where(records.arrived, records.co2_g, np.nan))
+    # insertion delays over the departed vehicles, or the compared ones
+    delayed = records.departed if compared is None else compared
+    if compared is None:
+        compared = records.arrived
+    elif np.any(compared & ~records.arrived):
+        raise ValueError("class_metrics: compared vehicles must have arrived")
+    fuel = np.where(records.arrived, records.fuel_g, np.nan)
+    co2 = np.where(records.arrived, records.co2_g, np.nan)
+    consumption = min_max_scores(fuel, None if scale is None else scale.fuel_g)
+    emission = min_max_scores(co2, None if scale is None else scale.co2_g)
     masks = {
         "all": np.ones_like(records.is_av, dtype=bool),
         "hv": ~records.is_av,
@@ -60,25 +121,45 @@ def class_metrics(records: VehicleRecords, horizon_s: float) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for name, mask in masks.items():
         arrived = mask & records.arrived
+        mean_over = mask & compared
         departed = mask & records.departed
         in_horizon = arrived & (records.arrival_s <= horizon_s)
         out[name] = {
             "n_vehicles": int(mask.sum()),
             "n_departed": int(departed.sum()),
             "n_arrived": int(arrived.sum()),
-            "mean_crossing_time_s": _mean(records.crossing_time_s[arrived]),
-            "co2_g_per_veh": _mean(records.co2_g[arrived]),
-            "fuel_g_per_veh": _mean(records.fuel_g[arrived]),
-            "consumption_score": _mean(consumption[arrived]),
-            "emission_score": _mean(emission[arrived]),
+            "n_not_arrived": int((mask & ~records.arrived).sum()),
+            "n_compared": int(mean_over.sum()),
+            "mean_crossing_time_s": _mean(records.crossing_time_s[mean_over]),
+            "co2_g_per_veh": _mean(records.co2_g[mean_over]),
+            "fuel_g_per_veh": _mean(records.fuel_g[mean_over]),
+            "consumption_score": _mean(consumption[mean_over]),
+            "emission_score": _mean(emission[mean_over]),
             "throughput_veh_per_h": float(in_horizon.sum() * 3600.0 / horizon_s),
             "mean_insertion_delay_s": _mean(
-                (records.depart_s - records.scheduled_depart_s)[departed]
+                (records.depart_s - records.scheduled_depart_s)[mask & delayed]
             ),
         }
     out["all"]["queue_mean_veh"] = [float(x) for x in records.queue_mean_veh]
     out["all"]["queue_max_veh"] = [float(x) for x in records.queue_max_veh]
     return out
+
+
+def arrived_in_all(runs: Iterable[VehicleRecords]) -> np.ndarray:
+    """bool (N,): the vehicles that arrived in every run (runs of one schedule).
+
+    Raises:
+        ValueError: no runs, or runs of different vehicles.
+    """
+    runs = list(runs)
+    if not runs:
+        raise ValueError("arrived_in_all: no runs")
+    both = np.ones(runs[0].is_av.shape, bool)
+    for records in runs:
+        if not np.array_equal(records.is_av, runs[0].is_av):
+            raise ValueError("arrived_in_all: the runs hold other vehicles")
+        both &= records.arrived
+    return both
 
 
 def mean_over_runs(per_run: list[dict[str, Any]]) -> dict[str, Any]:

@@ -11,16 +11,21 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 PANELS = (
-    ("emission_score", "emission score (Eq. 5)"),
-    ("consumption_score", "consumption score (Eq. 5)"),
+    ("emission_score", "emission score (Eq. 5{})"),
+    ("consumption_score", "consumption score (Eq. 5{})"),
     ("mean_crossing_time_s", "mean crossing time (s)"),
 )
+#: How the score panels name Eq. 5's scale.
+SCALE_LABEL = {"sweep": ", one scale over the sweep", "run": ", each run its own"}
 CLASS_STYLE = {"av": ("tab:blue", "AVs"), "hv": ("tab:orange", "HVs")}
 SIM_STYLE = {"sumo": ("-", "o"), "jax": ("--", "s")}
 
 
 def plot_sweep(
-    results: dict[str, dict[float, dict[str, Any]]], path: Path, title: str
+    results: dict[str, dict[float, dict[str, Any]]],
+    path: Path,
+    title: str,
+    score_scale: str = "run",
 ) -> None:
     """Emission, consumption and crossing time against AV penetration.
 
@@ -29,6 +34,8 @@ def plot_sweep(
             simulator "sumo" and/or "jax".
         path: the PNG to write.
         title: figure title.
+        score_scale: Eq. 5's scale of the scores ("sweep" or "run"), named on
+            the score panels.
     """
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8), constrained_layout=True)
     for ax, (key, label) in zip(axes, PANELS, strict=True):
@@ -51,7 +58,7 @@ def plot_sweep(
                         label=f"{name} ({sim.upper()})",
                     )
         ax.set_xlabel("AV penetration (%)")
-        ax.set_ylabel(label)
+        ax.set_ylabel(label.format(SCALE_LABEL[score_scale]))
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
     fig.suptitle(title)

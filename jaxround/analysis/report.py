@@ -26,10 +26,16 @@ ABSOLUTE_COLUMNS = (
     "CO2 g/veh AV",
     "CO2 g/veh HV",
     "arrived",
+    "not arrived",
     "collisions",
     "emergency brakings",
     "teleports",
 )
+#: What the Table 4 title says of Eq. 5's scale.
+SCALE_NOTE = {
+    "sweep": "min and max over every run of the table (one scale)",
+    "run": "min and max over each run's own vehicles (rows on different scales)",
+}
 
 
 def percent_label(p: float) -> str:
@@ -89,6 +95,7 @@ def table_rows(summary: dict[float, dict[str, Any]]) -> dict[str, list[list[str]
                 _cell(av["co2_g_per_veh"], 1),
                 _cell(hv["co2_g_per_veh"], 1),
                 _count(everyone["n_arrived"]),
+                _count(everyone.get("n_not_arrived")),
                 _count(m.get("collisions")),
                 _count(m.get("emergency_brakings")),
                 _count(m.get("teleports")),
@@ -111,19 +118,55 @@ def csv_table(columns: tuple[str, ...], rows: list[list[str]]) -> str:
     return buf.getvalue()
 
 
+def score_scale_of(summary: dict[float, dict[str, Any]]) -> str:
+    """The Eq. 5 scale a summary's rows carry ("score_scale"; "run" if none)."""
+    scales = {m.get("score_scale", "run") for m in summary.values()}
+    return scales.pop() if len(scales) == 1 else "run"
+
+
+def compared_note(summary: dict[float, dict[str, Any]]) -> str:
+    """A line for tables whose runs left vehicles outside at the cap ('' if
+    none did): their means are over the vehicles arrived in every run."""
+    left = [
+        (p, m["all"].get("n_not_arrived") or 0)
+        for p, m in sorted(summary.items())
+        if m["all"].get("n_not_arrived")
+    ]
+    if not left:
+        return ""
+    rows = ", ".join(f"{percent_label(p)}% AVs: {_count(n)}" for p, n in left)
+    return (
+        f"Vehicles outside at the cap (mean per seed; {rows}): means are over "
+        "the vehicles that arrived in every run compared.\n\n"
+    )
+
+
 def write_tables(
-    summary: dict[float, dict[str, Any]], out_dir: Path, prefix: str
+    summary: dict[float, dict[str, Any]],
+    out_dir: Path,
+    prefix: str,
+    score_scale: str | None = None,
 ) -> str:
-    """Write `<prefix>_table3.{md,csv}`, `_table4`, `_absolute`; return the Markdown."""
+    """Write `<prefix>_table3.{md,csv}`, `_table4`, `_absolute`; return the Markdown.
+
+    Args:
+        score_scale: Eq. 5's scale the rows were computed on, named in Table
+            4's title; None: the summary's own ("score_scale", `score_scale_of`).
+    """
     rows = table_rows(summary)
     parts = []
+    scale = score_scale or score_scale_of(summary)
+    note = compared_note(summary)
     specs = (
         ("table3", TABLE3_COLUMNS, "Mean crossing time (s), the paper's Table 3"),
-        ("table4", TABLE4_COLUMNS, "Consumption and emission scores, Table 4"),
+        (
+            "table4", TABLE4_COLUMNS,
+            f"Consumption and emission scores, Table 4 (Eq. 5: {SCALE_NOTE[scale]})",
+        ),
         ("absolute", ABSOLUTE_COLUMNS, "Absolute CO2 and fuel, arrivals and safety"),
-    )
+    )  # fmt: skip
     for key, cols, title in specs:
-        md = markdown_table(cols, rows[key])
+        md = note + markdown_table(cols, rows[key])
         (out_dir / f"{prefix}_{key}.md").write_text(f"### {title}\n\n{md}")
         (out_dir / f"{prefix}_{key}.csv").write_text(csv_table(cols, rows[key]))
         parts.append(f"### {title}\n\n{md}")

@@ -5,8 +5,14 @@ the JAX environment (one vmapped, jitted batch), with the AVs driven the same
 way in both (`jaxround.apps.drivers`: uncontrolled, a scripted controller or an
 exported policy), and compares the metrics and each vehicle's crossing time.
 Both simulators run until every scheduled vehicle has left, or the same cap
-(the demand horizon plus `jaxround.scenario.config.DRAIN_S`), reported with the
-vehicles still inside at the cap.
+(the demand horizon plus `drain_s`, by default
+`jaxround.scenario.config.DRAIN_S`), reported with the vehicles still inside
+at the cap, run by run. Every mean and every per-vehicle error is over the
+same vehicles on both sides: those that arrived in both runs of a schedule.
+
+Past capacity (queues that grow, vehicles left outside at the cap) the
+report's "saturation" part is the measure (`jaxround.analysis.saturation`):
+per-leg entry rates and crossing-time quantiles over seeds with intervals.
 """
 
 from __future__ import annotations
@@ -18,7 +24,8 @@ from typing import Any
 import jax
 import numpy as np
 
-from jaxround.analysis.metrics import class_metrics, mean_over_runs
+from jaxround.analysis.metrics import arrived_in_all, class_metrics, mean_over_runs
+from jaxround.analysis.saturation import saturation_report
 from jaxround.apps.drivers import (
     DriverSpec,
     config_for,
@@ -125,6 +132,7 @@ def parity_report(
     penetration: float = 0.0,
     controller: str | None = None,
     max_vehicles: int | str | None = None,
+    drain_s: float | None = None,
 ) -> dict[str, Any]:
     """The `jaxround parity --json` object for the schedules of `seeds`.
 
@@ -135,6 +143,15 @@ def parity_report(
             the traffic needs. Runs whose slots overflow are redone with more;
             the report gives the M of the reported runs, every M tried and the
             slot overflow (vehicle-steps insertions waited for a slot: 0).
+        drain_s: seconds after the demand horizon both simulators may go on
+            (the cap); None: `DRAIN_S`.
+
+    Returns:
+        The means of both simulators ("jax", "sumo": `class_metrics` over the
+        vehicles arrived in both runs of each schedule, means over seeds),
+        their relative errors, per-vehicle crossing-time errors, the runs
+        that left vehicles outside at the cap ("outside_at_cap"), and
+        "saturation" (`saturation_report`).
 
     Raises:
         ValueError: a bad controller spec, before anything runs.
@@ -144,28 +161,48 @@ def parity_report(
 
     driver = parse_driver(controller)
     cfg = cfg.with_overrides(penetration=penetration)
-    cap_s = cfg.demand.duration_s + DRAIN_S
+    drain_s = DRAIN_S if drain_s is None else drain_s
+    cap_s = cfg.demand.duration_s + drain_s
     schedules = [make_schedule(cfg, seed=s, penetration=penetration) for s in seeds]
     sumo_runs = run_many(
         config_for(cfg, driver), schedules, workers=workers,
-        controller=sumo_driver(driver),
+        controller=sumo_driver(driver), drain_s=drain_s,
     )  # fmt: skip
     jax_runs = run_jax(
         cfg, seeds, penetration, max_vehicles, driver=driver, cap_s=cap_s
     )
     horizon = cfg.demand.duration_s
-    sumo_m = mean_over_runs([class_metrics(r.records, horizon) for r in sumo_runs])
-    jax_m = mean_over_runs([class_metrics(r["records"], horizon) for r in jax_runs])
-    errors = []
-    for s_run, j_run in zip(sumo_runs, jax_runs, strict=True):
-        a = s_run.records.crossing_time_s
-        b = j_run["records"].crossing_time_s
-        both = np.isfinite(a) & np.isfinite(b)
-        errors.append(np.abs(a[both] - b[both]))
+    sumo_records = [r.records for r in sumo_runs]
+    jax_records = [r["records"] for r in jax_runs]
+    # the same vehicles on both sides: those arrived in both runs of a schedule
+    compared = [
+        arrived_in_all([a, b]) for a, b in zip(jax_records, sumo_records, strict=True)
+    ]
+
+    def means(records: list[Any]) -> dict[str, Any]:
+        return mean_over_runs(
+            [
+                class_metrics(r, horizon, compared=c)
+                for r, c in zip(records, compared, strict=True)
+            ]
+        )
+
+    sumo_m, jax_m = means(sumo_records), means(jax_records)
+    errors = [
+        np.abs(a.crossing_time_s[c] - b.crossing_time_s[c])
+        for a, b, c in zip(sumo_records, jax_records, compared, strict=True)
+    ]
     per_vehicle = np.concatenate(errors) if errors else np.zeros(0)
 
     def left_inside(records: Any) -> int:
         return int(np.sum(~np.isfinite(records.arrival_s)))
+
+    outside = [
+        {"sim": sim, "seed": seed, "not_arrived": left_inside(r)}
+        for sim, runs in (("jax", jax_records), ("sumo", sumo_records))
+        for seed, r in zip(seeds, runs, strict=True)
+        if left_inside(r)
+    ]
 
     return {
         "scenario": cfg.name,
@@ -179,8 +216,13 @@ def parity_report(
         },
         **per_vehicle_stats(per_vehicle),
         "cap_s": cap_s,
-        "jax_not_arrived": sum(left_inside(r["records"]) for r in jax_runs),
-        "sumo_not_arrived": sum(left_inside(r.records) for r in sumo_runs),
+        "jax_not_arrived": sum(left_inside(r) for r in jax_records),
+        "sumo_not_arrived": sum(left_inside(r) for r in sumo_records),
+        "n_compared": int(sum(c.sum() for c in compared)),
+        "outside_at_cap": outside,
+        "saturation": saturation_report(
+            jax_records, sumo_records, compared, cfg.n_legs, horizon
+        ),
         "max_vehicles": jax_runs[0]["max_vehicles"],
         "max_vehicles_tried": jax_runs[0]["max_vehicles_tried"],
         "jax_slot_overflow": int(sum(r["overflow"] for r in jax_runs)),

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxround.analysis.report import percent_label, write_json, write_tables
-from jaxround.scenario.config import ScenarioConfig
+from jaxround.scenario.config import DRAIN_S, ScenarioConfig
 
 #: Training folder inside the main job's output folder.
 TRAIN_DIR = "train"
@@ -42,6 +42,7 @@ def evaluate_everywhere(
     progress: bool = True,
     say: Callable[[str], None] = print,
     step: str = "",
+    drain_s: float = DRAIN_S,
 ) -> dict[str, Any]:
     """A policy over penetrations, beside uncontrolled AVs of the same vType,
     in JAX and in SUMO, on the same schedules; tables, figure and JSON into
@@ -52,32 +53,37 @@ def evaluate_everywhere(
         "sumo_uncontrolled": {label: M}, "jax": {label: M},
         "jax_uncontrolled": {label: M}, "max_vehicles": JAX's slots,
         "jax_slot_overflow": vehicle-steps, "cap_s": the longest a JAX run
-        went on, "jax_not_arrived": vehicles not out by then, "comparison":
+        went on, "jax_not_arrived" and "sumo_not_arrived": vehicles not out
+        by then, "outside_at_cap": `outside_at_cap`, "comparison":
         {...}, "tables"}`` with
         M as `jaxround.analysis.metrics.class_metrics` (means over seeds) plus the
         safety counters, and "comparison" as `compare_with_uncontrolled`;
         also written to ``out/evaluation.json``.
     """
     from agents.common.evaluation import evaluate_policy
-    from sumo_export.evaluate import policy_controller, summarise_runs, sumo_runs
+    from sumo_export.evaluate import compare_drivers, policy_controller, sumo_runs
     from sumo_export.policy_report import write_policy_report
 
     n = f"{len(penetrations)} penetrations x {len(seeds)} seed(s)"
     factory = policy_controller(cfg, policy)  # a bad policy fails before any run
     say(f"{step}JAX: policy and uncontrolled AVs, {n}")
-    jax_eval = evaluate_policy(policy, cfg, penetrations, seeds, keep_records=True)
+    jax_eval = evaluate_policy(
+        policy, cfg, penetrations, seeds, keep_records=True, drain_s=drain_s
+    )
     jax_policy = jax_eval["results"]["policy"]
-    write_tables(jax_policy, out, "jax_policy")
-    write_tables(jax_eval["results"]["uncontrolled"], out, "jax_uncontrolled")
+    scale = jax_eval["score_scale"]
+    write_tables(jax_policy, out, "jax_policy", scale)
+    write_tables(jax_eval["results"]["uncontrolled"], out, "jax_uncontrolled", scale)
     say(f"{step}SUMO: the policy through libsumo, then uncontrolled AVs, {n}")
     runs = {
         "policy": sumo_runs(cfg, penetrations, seeds, workers, progress, factory,
-                            desc="SUMO, policy"),
+                            desc="SUMO, policy", drain_s=drain_s),
         "uncontrolled": sumo_runs(cfg, penetrations, seeds, workers, progress,
-                                  desc="SUMO, uncontrolled AVs"),
+                                  desc="SUMO, uncontrolled AVs", drain_s=drain_s),
     }  # fmt: skip
-    sweep = {p: summarise_runs(cfg, r) for p, r in runs["policy"].items()}
-    plain = {p: summarise_runs(cfg, r) for p, r in runs["uncontrolled"].items()}
+    # the same vehicles on both sides; Eq. 5 on one scale over every run
+    summaries = compare_drivers(cfg, runs, score_scale="sweep")
+    sweep, plain = summaries["policy"], summaries["uncontrolled"]
     write_tables({p: r["mean"] for p, r in plain.items()}, out, "sumo_uncontrolled")
     tables = write_policy_report(cfg, sweep, out, policy, jax_results=jax_policy)
     sumo_records = {
@@ -96,6 +102,13 @@ def evaluate_everywhere(
         "jax_slot_overflow": jax_eval["jax_slot_overflow"],
         "cap_s": jax_eval["cap_s"],
         "jax_not_arrived": jax_eval["jax_not_arrived"],
+        "sumo_not_arrived": sum(
+            int((~r.arrived).sum())
+            for by_p in sumo_records.values()
+            for rs in by_p.values()
+            for r in rs
+        ),
+        "outside_at_cap": outside_at_cap(jax_eval, sumo_records, seeds),
         "comparison": compare_with_uncontrolled(
             {"sumo": sumo_records, "jax": jax_eval["records"]}
         ),
@@ -110,6 +123,24 @@ def evaluate_everywhere(
     )  # fmt: skip
     write_json(result, out / "evaluation.json")
     return result
+
+
+def outside_at_cap(
+    jax_eval: dict[str, Any],
+    sumo_records: dict[str, dict[float, list[Any]]],
+    seeds: Sequence[int],
+) -> list[dict[str, Any]]:
+    """The runs that left vehicles outside at the cap, JAX's then SUMO's:
+    ``[{"sim", "driver", "penetration", "seed", "not_arrived"}]``."""
+    out = [{"sim": "jax", **entry} for entry in jax_eval["outside_at_cap"]]
+    for driver, by_p in sumo_records.items():
+        for p, rs in by_p.items():
+            for seed, r in zip(seeds, rs, strict=True):
+                left = int((~r.arrived).sum())
+                if left:
+                    out.append({"sim": "sumo", "driver": driver, "penetration": p,
+                                "seed": seed, "not_arrived": left})  # fmt: skip
+    return out
 
 
 def compare_with_uncontrolled(

@@ -69,6 +69,11 @@ def insertion_speed(
     return lax.while_loop(more, iterate, (0, v, done))[1]
 
 
+#: SUMO's MSCFModel_IDM insertion recursion stops once two more IDM updates
+#: would lower the speed by less than this (m/s).
+SETTLED_DROP = 1.0
+
+
 def insertion_stop_speed(
     v: jax.Array,
     v0: jax.Array,
@@ -78,11 +83,21 @@ def insertion_stop_speed(
     n_substeps: int,
     iterations: int = 12,
 ) -> jax.Array:
-    """Insertion speed before the yield line `seen` metres ahead (SUMO, measured).
+    """Insertion speed before the yield line `seen` metres ahead.
 
-    While the line lies within the vehicle's braking distance plus minGap
-    (SUMO's insertion look-ahead), the speed is lowered to the IDM stop speed
-    for the line, the lane's speed `v0` staying the desired speed.
+    SUMO's ``MSLane::isInsertionSuccess`` (MSLane.cpp) asks for a stop at the
+    minor entry link only while the line lies within the vehicle's braking
+    distance plus minGap (``dist = brakeGap(speed) + minGap``; measured with
+    the line 0.1 m closer), the speed then coming from
+    ``MSCFModel::insertionStopSpeed`` for the IDM. Measured on SUMO 1.28
+    (`tests/sumo/test_insertion_sumo.py`, speed factors 0.8-1.4), that speed
+    is the recursion of ``MSCFModel_IDM::insertionFollowSpeed`` with the IDM
+    stop speed in place of the follow speed: while the IDM's desired gap
+    ``v*tau + v^2 / (2 sqrt(a b))`` exceeds `seen`, ``s2`` = the stop speed
+    from the speed and ``s3`` = the one from ``s2``; ``s2`` once
+    ``s2 - s3 < 1`` m/s, else again from ``s2``. The lane's speed `v0` stays
+    the desired speed. (One lowering alone, the rule before, left drivers
+    with speed factors of about 1.1 up to 1 m/s faster than SUMO's.)
 
     Args:
         v: (G,) the speed to start from; v0: (G,) the desired speed;
@@ -92,20 +107,29 @@ def insertion_stop_speed(
         (G,) speed.
     """
     p = params
+    two_sqrt_ab = 2.0 * jnp.sqrt(p.accel * p.decel)
+    reach = brake_gap(v, p.decel, p.tau, dt) + p.min_gap
+    must_stop = reach > seen - STOP_OFFSET
 
-    def iterate(carry: tuple[jax.Array, jax.Array, jax.Array]):
-        i, speed, _ = carry
-        reach = brake_gap(speed, p.decel, p.tau, dt) + p.min_gap
-        too_fast = reach > seen - STOP_OFFSET
-        s2 = idm.idm_v(
+    def stop(speed: jax.Array) -> jax.Array:
+        return idm.idm_v(
             speed, 0.0, seen, v0, vtype=p.idm, s0=0.0, dt=dt, n_substeps=n_substeps
         )
-        lowered = jnp.where(too_fast, jnp.minimum(s2, speed), speed)
-        return i + 1, lowered, jnp.any(lowered != speed)
 
-    # until no speed changes (a fixed point: later iterations change nothing)
+    def iterate(carry: tuple[jax.Array, jax.Array, jax.Array]):
+        i, speed, done = carry
+        desired_gap = jnp.maximum(0.0, speed * p.tau + speed * speed / two_sqrt_ab)
+        room = seen >= desired_gap
+        s2 = stop(speed)
+        s3 = stop(s2)
+        settled = s2 - s3 < SETTLED_DROP
+        lowered = jnp.where(done | room, speed, s2)
+        return i + 1, lowered, done | room | settled
+
+    # a loop that stops once every speed is settled (later iterations would
+    # change nothing; insertion carries no gradient)
     def more(carry: tuple[jax.Array, jax.Array, jax.Array]) -> jax.Array:
-        i, _, changed = carry
-        return (i < iterations) & changed
+        i, _, done = carry
+        return (i < iterations) & ~jnp.all(done)
 
-    return lax.while_loop(more, iterate, (0, v, jnp.bool_(True)))[1]
+    return lax.while_loop(more, iterate, (0, v, ~must_stop))[1]

@@ -115,3 +115,46 @@ def test_parity_redoes_runs_whose_slots_overflow(
     assert tried[:2] == [2, 4] and report["max_vehicles"] == tried[-1]
     assert report["jax_slot_overflow"] == 0
     assert "max_vehicles = 2; redone with 4 slots" in captured.err
+
+
+@pytest.mark.sumo
+def test_parity_names_runs_with_vehicles_outside_at_the_cap(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # 40 vehicles in 60 s and no time to drain: both simulators leave
+    # vehicles outside at the cap; the command names the runs on stderr and
+    # in the JSON, and compares only the vehicles arrived in both
+    d = builtin_dict("milan")
+    d["demand"].update(n_vehicles=40, duration_s=60.0)
+    path = tmp_path / "short.yaml"
+    path.write_text(yaml.safe_dump(d))
+    argv = ["parity", "--config", str(path), "--seeds", "2", "--drain-s", "0",
+            "--workers", "1", "--json", "--no-progress"]  # fmt: skip
+    assert main(argv) == 0
+    captured = capsys.readouterr()
+    report = json.loads(captured.out)
+    assert report["cap_s"] == 60.0
+    outside = report["outside_at_cap"]
+    assert {r["sim"] for r in outside} == {"jax", "sumo"}
+    assert (
+        sum(r["not_arrived"] for r in outside if r["sim"] == "jax")
+        == (report["jax_not_arrived"])
+    )
+    assert "vehicles still outside at the cap (60 s)" in captured.err
+    for r in outside:
+        assert f"{r['sim'].upper()} seed {r['seed']}: {r['not_arrived']}" in (
+            captured.err
+        )
+    assert "--drain-s" in captured.err
+    # means over the same vehicles on both sides, fewer than either run's own
+    jax_all, sumo_all = report["jax"]["all"], report["sumo"]["all"]
+    assert jax_all["n_compared"] == sumo_all["n_compared"]
+    assert report["n_compared"] == 2 * jax_all["n_compared"]
+    assert jax_all["n_compared"] <= min(jax_all["n_arrived"], sumo_all["n_arrived"])
+    assert jax_all["n_compared"] < jax_all["n_vehicles"]
+    # past capacity: entry rates per leg and quantiles, with intervals
+    rates = report["saturation"]["entry_rate_veh_per_h"]
+    assert len(rates["jax"]["mean"]) == 4 and len(rates["jax"]["per_seed"]) == 2
+    assert all(ci is not None for ci in rates["diff"]["ci95"])
+    quantiles = report["saturation"]["crossing_time_quantiles_s"]
+    assert quantiles["sumo"]["mean"][0] <= quantiles["sumo"]["mean"][2]

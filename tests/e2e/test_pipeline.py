@@ -72,6 +72,10 @@ def test_main_job_writes_every_result(finished_run: Path) -> None:
     # the JAX evaluation's slots: what the traffic needs, none overflowed
     assert results["max_vehicles"] < 76 and results["jax_slot_overflow"] == 0
     assert results["jax_not_arrived"] == 0 and results["cap_s"] > 0
+    assert results["sumo_not_arrived"] == 0 and results["outside_at_cap"] == []
+    # Table 4 on one scale over every run compared, and saying so
+    assert "one scale" in (finished_run / "sumo_policy_table4.md").read_text()
+    assert "one scale" in (finished_run / "jax_policy_table4.md").read_text()
     for name in (
         "train/policy.npz",
         "train/policy.json",

@@ -8,6 +8,7 @@ give the very same files.
 from __future__ import annotations
 
 import json
+import shutil
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -16,6 +17,7 @@ import pytest
 import yaml
 
 from agents.common.config import load_ppo_config
+from agents.common.evaluation import DRIVERS
 from agents.run import train_to_dir
 from agents.run.algorithms import CSV_COLUMNS
 from agents.run.metrics_csv import read_csv
@@ -111,6 +113,53 @@ def test_resume_after_a_kill(
     assert "another config (seed: 0 -> 7)" in capsys.readouterr().err
 
 
+def stopped_copy(first_run: Path, out: Path) -> Path:
+    """`first_run` as if killed after its last checkpoint was written: no
+    policy yet (its checkpoints at updates 2 and 4)."""
+    shutil.copytree(first_run, out)
+    for name in ("policy.npz", "policy.json"):
+        (out / name).unlink()
+    return out
+
+
+def test_resume_skips_a_truncated_checkpoint(
+    first_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The last checkpoint with a data file cut short: one line names it, the
+    run resumes from the one before and ends as the uninterrupted run; the
+    damaged folder is kept aside."""
+    out = stopped_copy(first_run, tmp_path / "d")
+    # the data file of the OCDBT root (orbax: OUT_OF_RANGE reading the arrays)
+    (data,) = (out / "checkpoints" / "4" / "default" / "d").iterdir()
+    data.write_bytes(data.read_bytes()[: data.stat().st_size // 2])
+    capsys.readouterr()
+    assert main(["train", "--resume", str(out), "--no-progress"]) == 0
+    err = capsys.readouterr().err
+    damaged = [line for line in err.splitlines() if "is damaged" in line]
+    assert len(damaged) == 1 and str(out / "checkpoints" / "4") in damaged[0]
+    assert f"resuming from checkpoint {out / 'checkpoints' / '2'}" in err
+    assert "Traceback" not in err
+    assert_same_run(first_run, out)
+    assert (out / "checkpoints" / "4.damaged").is_dir()
+
+
+def test_resume_refuses_checkpoints_of_another_shape(
+    first_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A run folder whose config.yaml builds other layers than its
+    checkpoints hold: a clear error, exit 2, nothing changed."""
+    out = stopped_copy(first_run, tmp_path / "e")
+    wider = tiny_config(hidden=tuple(h + 3 for h in tiny_config().hidden))
+    (out / "config.yaml").write_text(wider.to_yaml())
+    before = sorted(p.name for p in (out / "checkpoints").iterdir())
+    capsys.readouterr()
+    assert main(["train", "--resume", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "does not fit this run's config" in err and "has shape" in err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == before
+
+
 def test_train_refuses_bad_requests(
     first_run: Path, ppo_yaml: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -163,6 +212,33 @@ def test_evaluate_json(
     # every run went on until its vehicles had left, as in SUMO, within the cap
     horizon = load_config(scenario).demand.duration_s
     assert report["cap_s"] == horizon + DRAIN_S and report["jax_not_arrived"] == 0
+    assert report["outside_at_cap"] == [] and report["score_scale"] == "sweep"
+    assert "one scale" in (out / "jax_policy_table4.md").read_text()
+
+
+def test_evaluate_compares_the_same_vehicles(
+    first_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """No time to drain: the runs leave vehicles outside at the cap, the
+    command names them, and policy and baseline are means over the same
+    vehicles (those arrived in both)."""
+    scenario = small_scenario(tmp_path)
+    args = [
+        "evaluate", "--policy", str(first_run), "--config", str(scenario),
+        "--penetrations", "50", "--max-vehicles", "16", "--drain-s", "0",
+        "--score-scale", "run", "--json",
+    ]  # fmt: skip
+    assert main(args) == 0
+    captured = capsys.readouterr()
+    report = json.loads(captured.out)
+    assert report["cap_s"] == load_config(scenario).demand.duration_s
+    assert report["jax_not_arrived"] > 0 and report["score_scale"] == "run"
+    assert "vehicles still outside at the cap" in captured.err
+    for r in report["outside_at_cap"]:
+        assert f"{r['driver']} 50% AVs seed 0: {r['not_arrived']}" in captured.err
+    policy, baseline = (report["results"][d]["50"]["all"] for d in DRIVERS)
+    assert policy["n_compared"] == baseline["n_compared"] > 0
+    assert policy["n_compared"] <= min(policy["n_arrived"], baseline["n_arrived"])
 
 
 def test_evaluate_refuses(

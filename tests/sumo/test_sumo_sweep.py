@@ -53,6 +53,9 @@ def test_policy_sweep_in_worker_processes_and_its_report(tmp_path: Path) -> None
     out = tmp_path / "report"
     markdown = write_policy_report(cfg, sweep, out, policy, jax_results=jax_like)
     assert "Table 3" in markdown and "controller median" in markdown
+    # Eq. 5 on one scale over the sweep, and the table says so
+    assert all(r["mean"]["score_scale"] == "sweep" for r in sweep.values())
+    assert "one scale" in (out / "sumo_policy_table4.md").read_text()
     for name in ("table3", "table4", "absolute", "controller"):
         assert (out / f"sumo_policy_{name}.md").is_file()
         rows = list(csv.reader((out / f"sumo_policy_{name}.csv").open()))

@@ -7,9 +7,11 @@ import pytest
 
 from jaxround.analysis.metrics import (
     VehicleRecords,
+    arrived_in_all,
     class_metrics,
     mean_over_runs,
     min_max_scores,
+    sweep_scale,
 )
 
 NAN = np.nan
@@ -72,3 +74,57 @@ def test_mean_over_runs() -> None:
     a = {"all": {"x": 1.0, "y": None, "q": [1.0, 3.0]}}
     b = {"all": {"x": 3.0, "y": 4.0, "q": [3.0, 5.0]}}
     assert mean_over_runs([a, b]) == {"all": {"x": 2.0, "y": 4.0, "q": [2.0, 4.0]}}
+
+
+def test_means_over_the_vehicles_arrived_in_every_run() -> None:
+    """The second run leaves HV 0 outside at its cap: both runs' means are
+    then over HV 1 and AV 2 alone, each run's own arrivals still counted."""
+    a = records()
+    b = VehicleRecords(**{**a.__dict__, "arrival_s": np.array([NAN, 50.0, 45.0, NAN])})
+    both = arrived_in_all([a, b])
+    np.testing.assert_array_equal(both, [False, True, True, False])
+    ma = class_metrics(a, horizon_s=36.0, compared=both)
+    mb = class_metrics(b, horizon_s=36.0, compared=both)
+    # crossing times over vehicles 1 and 2: a: 30, 15; b: 40, 25
+    assert ma["all"]["mean_crossing_time_s"] == pytest.approx(22.5)
+    assert mb["all"]["mean_crossing_time_s"] == pytest.approx(32.5)
+    assert ma["hv"]["co2_g_per_veh"] == pytest.approx(90.0)
+    assert ma["all"]["n_compared"] == mb["all"]["n_compared"] == 2
+    # insertion delays over the same two: vehicle 1 waited 2 s, vehicle 2 none
+    assert ma["all"]["mean_insertion_delay_s"] == pytest.approx(1.0)
+    assert (ma["all"]["n_arrived"], mb["all"]["n_arrived"]) == (3, 2)
+    assert (ma["all"]["n_not_arrived"], mb["all"]["n_not_arrived"]) == (1, 2)
+    with pytest.raises(ValueError, match="must have arrived"):
+        class_metrics(b, horizon_s=36.0, compared=a.arrived)
+    other = VehicleRecords(**{**a.__dict__, "is_av": np.ones(4, bool)})
+    with pytest.raises(ValueError, match="other vehicles"):
+        arrived_in_all([a, other])
+
+
+def test_one_score_scale_over_a_sweep() -> None:
+    """Two hand-made runs, the second emitting less: on the sweep's scale its
+    scores are lower, as its grams are; each on its own scale they are not."""
+    dirty = records()  # CO2 50, 90, 60; fuel 16, 30, 23
+    clean = VehicleRecords(
+        **{
+            **dirty.__dict__,
+            "co2_g": np.array([40.0, 44.0, 48.0, NAN]),
+            "fuel_g": np.array([13.0, 14.0, 16.0, NAN]),
+        }
+    )
+    scale = sweep_scale([dirty, clean])
+    assert scale.co2_g == (40.0, 90.0) and scale.fuel_g == (13.0, 30.0)
+    d = class_metrics(dirty, horizon_s=36.0, scale=scale)
+    c = class_metrics(clean, horizon_s=36.0, scale=scale)
+    # CO2 on 40..90: dirty HVs 0.2, 1.0 -> 0.6; clean HVs 0, 0.08 -> 0.04
+    assert d["hv"]["emission_score"] == pytest.approx(0.6)
+    assert c["hv"]["emission_score"] == pytest.approx(0.04)
+    # fuel on 13..30: clean AV (16 g) 3/17, dirty AV (23 g) 10/17
+    assert c["av"]["consumption_score"] == pytest.approx(3 / 17)
+    assert d["av"]["consumption_score"] == pytest.approx(10 / 17)
+    # per run: the clean run's HVs score 0, 0.5 -> 0.25, the dirty run's 0.5
+    # (lower, yet not on the same scale: the cleaner AV scores 1 against 0.25)
+    own = class_metrics(clean, horizon_s=36.0)
+    assert own["hv"]["emission_score"] == pytest.approx(0.25)
+    assert own["av"]["emission_score"] == pytest.approx(1.0)
+    assert sweep_scale([]) is None

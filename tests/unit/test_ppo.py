@@ -304,6 +304,37 @@ def test_export_refuses_mismatched_files(tmp_path: Path) -> None:
         load_policy(tmp_path / "missing")
 
 
+def test_non_finite_weights_are_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A NaN weight is refused when exported and when loaded (evaluate, export,
+    the SUMO controller and the study all load through `load_policy`)."""
+    network = networks.ActorCritic(hidden=(4,))
+    params = networks.init_params(network, jax.random.PRNGKey(0), 3, 2)
+    layout = PolicyLayout("rich", 3, (4,), "tanh", False, (-4.0, 2.0))
+    npz, _ = export_policy(params, layout, tmp_path / "p.npz")
+    with np.load(npz) as data:
+        arrays = {k: data[k] for k in data.files}
+    arrays["accel_mean/bias"] = np.array([np.nan], np.float32)
+    np.savez(npz, **arrays)
+    with pytest.raises(ValueError, match="'accel_mean/bias' holds 1 non-finite"):
+        load_policy(tmp_path / "p")
+    with pytest.raises(ValueError, match="non-finite"):
+        load_policy_numpy(tmp_path / "p")
+    from jaxround.apps.cli.main import main
+
+    assert main(["evaluate", "--policy", str(tmp_path / "p")]) == 2
+    err = capsys.readouterr().err
+    assert "accel_mean/bias" in err and "non-finite" in err
+    assert "Traceback" not in err
+    bad = jax.tree.map(lambda x: x, params)
+    kernel = bad["params"]["actor_0"]["kernel"]
+    bad["params"]["actor_0"]["kernel"] = kernel.at[0, 0].set(jnp.inf)
+    with pytest.raises(ValueError, match="'actor_0/kernel' holds 1 non-finite"):
+        export_policy(bad, layout, tmp_path / "q")
+    assert not (tmp_path / "q.npz").exists()
+
+
 # --------------------------------------------------------------------------- config
 
 

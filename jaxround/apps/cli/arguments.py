@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxround.core.capacity import overflow_warning
-from jaxround.scenario.config import ScenarioConfig
+from jaxround.scenario.config import DRAIN_S, ScenarioConfig
 
 
 class UsageError(ValueError):
@@ -146,6 +146,58 @@ def slots_option(p: argparse.ArgumentParser) -> None:
         "the scenario's simulation.max_vehicles, else what its traffic needs; "
         "a run whose slots overflow is redone with more)",
     )  # fmt: skip
+
+
+def drain_option(p: argparse.ArgumentParser) -> None:
+    """--drain-s: how long runs may go on after the demand horizon (the cap)."""
+    p.add_argument(
+        "--drain-s", type=nonnegative_seconds, default=DRAIN_S,
+        help="simulated seconds after the demand horizon a run may go on for its "
+        f"last vehicles, in both simulators (default {DRAIN_S:g}); raise it when "
+        "vehicles are left outside at the cap",
+    )  # fmt: skip
+
+
+def score_scale_option(p: argparse.ArgumentParser) -> None:
+    """--score-scale: Eq. 5's min and max over the sweep or per run."""
+    p.add_argument(
+        "--score-scale", choices=("sweep", "run"), default="sweep",
+        help="Eq. 5 (consumption and emission scores): min and max over every "
+        "run compared (sweep, the default: rows on one scale) or each run's own",
+    )  # fmt: skip
+
+
+def nonnegative_seconds(text: str) -> float:
+    try:
+        x = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not x >= 0.0 or x == float("inf"):
+        raise argparse.ArgumentTypeError(f"{text}: expected 0 or more seconds")
+    return x
+
+
+def warn_outside_at_cap(result: dict[str, Any], what: str) -> None:
+    """Name on stderr the runs of a result that left vehicles outside at the
+    cap (``outside_at_cap``: ``[{"sim"?, "driver"?, "penetration"?, "seed",
+    "not_arrived"}]``, ``cap_s``); say the means are over the vehicles
+    arrived in every run compared, and how to raise the cap."""
+    runs = result.get("outside_at_cap") or []
+    if not runs:
+        return
+    names = []
+    for r in runs:
+        parts = [r.get("sim", "").upper(), r.get("driver", "")]
+        if "penetration" in r:
+            parts.append(f"{100 * r['penetration']:g}% AVs")
+        parts.append(f"seed {r['seed']}: {r['not_arrived']}")
+        names.append(" ".join(x for x in parts if x))
+    print(
+        f"{what}: vehicles still outside at the cap ({result.get('cap_s', 0):g} s) "
+        f"in {len(runs)} run(s) [{'; '.join(names)}]; the means compare only the "
+        "vehicles that arrived in every run compared; raise the cap with --drain-s",
+        file=sys.stderr,
+    )
 
 
 def warn_slot_overflow(result: dict[str, Any], what: str) -> None:

@@ -6,10 +6,11 @@ import argparse
 import sys
 from pathlib import Path
 
-from jaxround.analysis.report import percent_label
+from jaxround.analysis.report import markdown_table, percent_label
 from jaxround.apps.cli.arguments import (
     UsageError,
     config_option,
+    drain_option,
     fresh_output_dir,
     non_negative_int,
     percent,
@@ -18,6 +19,7 @@ from jaxround.apps.cli.arguments import (
     seeds_of,
     slots_option,
     sumo_run_options,
+    warn_outside_at_cap,
     warn_slot_overflow,
 )
 from jaxround.scenario.config import load_config
@@ -88,10 +90,12 @@ def cmd_parity(args: argparse.Namespace) -> None:
             cfg, seeds_of(cfg, args.seeds), workers=args.workers,
             show_progress=not args.no_progress, penetration=args.penetration,
             controller=args.controller, max_vehicles=args.max_vehicles,
+            drain_s=args.drain_s,
         )  # fmt: skip
     except ValueError as err:
         raise UsageError(str(err)) from None
     warn_slot_overflow(report, "parity")
+    warn_outside_at_cap(report, "parity")
     if args.json:
         print_json(report)
         return
@@ -120,9 +124,20 @@ def cmd_parity(args: argparse.Namespace) -> None:
     )
     print(
         f"not arrived by {report['cap_s']:.0f} s: JAX {report['jax_not_arrived']}, "
-        f"SUMO {report['sumo_not_arrived']}; JAX slot overflow "
+        f"SUMO {report['sumo_not_arrived']}; means and errors over the "
+        f"{report['n_compared']} vehicles arrived in both; JAX slot overflow "
         f"{report['jax_slot_overflow']} vehicle-steps ({report['max_vehicles']} slots)"
     )
+    if args.saturation or report["outside_at_cap"]:
+        from jaxround.analysis.saturation import SATURATION_COLUMNS, saturation_rows
+
+        print(
+            "\npast capacity: per-leg entry rates and crossing-time quantiles, "
+            "mean over seeds [95% interval]; per-vehicle errors are not the "
+            "measure once queues grow (see docs/parity.md)\n"
+        )
+        rows = saturation_rows(report["saturation"])
+        print(markdown_table(SATURATION_COLUMNS, rows), end="")
 
 
 def cmd_bench(args: argparse.Namespace) -> None:
@@ -203,6 +218,13 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
         "their vType), accel:A, cruise:V, eco[:B], timed[:H] or a policy file",
     )  # fmt: skip
     slots_option(p)
+    drain_option(p)
+    p.add_argument(
+        "--saturation", action="store_true",
+        help="also print per-leg entry rates and crossing-time quantiles over "
+        "seeds with intervals (printed anyway when vehicles are left outside at "
+        "the cap; always in --json)",
+    )  # fmt: skip
     sumo_run_options(p)
     p.set_defaults(func=cmd_parity)
 

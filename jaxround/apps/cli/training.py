@@ -10,13 +10,16 @@ from jaxround.analysis.report import percent_label
 from jaxround.apps.cli.arguments import (
     UsageError,
     config_option,
+    drain_option,
     fresh_output_dir,
     non_negative_int,
     percent_list,
     positive_int,
     print_json,
+    score_scale_option,
     seeds_of,
     slots_option,
+    warn_outside_at_cap,
     warn_slot_overflow,
     workers_option,
 )
@@ -34,11 +37,12 @@ def evaluate_in_sumo(
     try:
         result = evaluate_everywhere(
             cfg, args.policy, args.penetrations, seeds, out, workers=args.workers,
-            progress=not args.json, say=say,
+            progress=not args.json, say=say, drain_s=args.drain_s,
         )  # fmt: skip
     except (OSError, ValueError) as err:
         raise UsageError(f"--policy {args.policy}: {err}") from None
     warn_slot_overflow(result, "evaluate (JAX)")
+    warn_outside_at_cap(result, "evaluate")
     if args.json:
         print_json({k: v for k, v in result.items() if k != "tables"})
         return
@@ -74,6 +78,7 @@ def cmd_run(args: argparse.Namespace) -> None:
         cfg, out, seeds, penetrations, train_cfg, workers=args.workers,
         progress=not args.no_progress, say=say,
     )  # fmt: skip
+    warn_outside_at_cap(result, "run")
     print(result["tables"])
     print(headline(result))
     print(
@@ -155,10 +160,15 @@ def cmd_train(args: argparse.Namespace) -> None:
         f"{algo.upper()}: {cfg.num_updates} updates of {cfg.n_envs} x {steps} env "
         f"steps ({cfg.scenario}, {cfg.demand_window_s:g} s of demand), into {out}"
     )
-    result = train_to_dir(
-        cfg, out, resume=args.resume is not None, progress=not args.no_progress,
-        say=say,
-    )  # fmt: skip
+    from agents.run.checkpoints import CheckpointMismatchError
+
+    try:
+        result = train_to_dir(
+            cfg, out, resume=args.resume is not None, progress=not args.no_progress,
+            say=say,
+        )  # fmt: skip
+    except CheckpointMismatchError as err:
+        raise UsageError(f"--resume {out}: {err}") from None
     rate = result["env_steps_per_s"]
     last = result["last"]
     print(
@@ -219,11 +229,13 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
         return
     try:
         summary = evaluate_policy(
-            args.policy, cfg, args.penetrations, seeds, max_vehicles=args.max_vehicles
-        )
+            args.policy, cfg, args.penetrations, seeds, max_vehicles=args.max_vehicles,
+            drain_s=args.drain_s, score_scale=args.score_scale,
+        )  # fmt: skip
     except ValueError as err:
         raise UsageError(f"--policy {args.policy}: {err}") from None
     warn_slot_overflow(summary, "evaluate")
+    warn_outside_at_cap(summary, "evaluate")
     results = summary["results"]
     by_label = {
         driver: {percent_label(p): m for p, m in per_p.items()}
@@ -232,8 +244,9 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
     report = {**summary, "results": by_label}
     if out is not None:
         write_json(report, out / "evaluation.json")
-        write_tables(results["policy"], out, "jax_policy")
-        write_tables(results["uncontrolled"], out, "jax_uncontrolled")
+        scale = summary["score_scale"]
+        write_tables(results["policy"], out, "jax_policy", scale)
+        write_tables(results["uncontrolled"], out, "jax_uncontrolled", scale)
     if args.json:
         print_json(report)
         return
@@ -352,6 +365,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     )  # fmt: skip
     p.add_argument("--seeds", type=positive_int, default=1, help="number of seeds")
     slots_option(p)
+    drain_option(p)
+    score_scale_option(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", type=Path, default=None, help="also write files here")
     p.add_argument("--force", action="store_true", help="overwrite evaluation.json")
