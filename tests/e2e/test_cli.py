@@ -105,6 +105,8 @@ def test_bench_flags_fail_before_work(
     assert f"policy file {missing} does not exist" in capsys.readouterr().err
     assert main(["bench", "--json", "--train-config", str(tmp_path / "x.yaml")]) == 2
     assert "x.yaml" in capsys.readouterr().err
+    assert main(["bench", "--profile", "--policy", str(missing)]) == 2
+    assert "not with --profile" in capsys.readouterr().err
 
 
 @pytest.mark.sumo

@@ -130,6 +130,8 @@ def cmd_bench(args: argparse.Namespace) -> None:
 
     if args.batch is not None and not args.profile:
         raise UsageError("--batch: only with --profile (the benchmark runs its own)")
+    if args.profile and (args.policy is not None or args.train_config is not None):
+        raise UsageError("--policy, --train-config: not with --profile (no training)")
     cfg = load_config(args.config)
     if args.profile:
         from jaxround.apps.bench_profile import (
