@@ -27,6 +27,11 @@ roundabout-step (the cost analysis of a compiled one-step program), and a
 yardstick timed in the same run, the bare IDM ring of `jaxround.apps.bare_ring` at
 the best batch: what the machine gives the simplest car-following step with
 the same slots. `jaxround.apps.bench_report` formats the tables.
+
+With a PPO config (``training=``, the CLI's default), the run ends with the
+speed a user of the environment gets, in env-steps/s: PPO training, and an
+exported policy driving the AVs in JAX and in SUMO in the loop
+(`jaxround.apps.bench_training`).
 """
 
 from __future__ import annotations

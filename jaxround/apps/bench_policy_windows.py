@@ -71,7 +71,8 @@ def measure_jax_policy(
         seed: schedule seed of roundabout 0.
 
     Returns:
-        ``{"env_steps_per_s", "vehicle_steps_per_s", "batch", "max_vehicles",
+        ``{"env_steps_per_s", "vehicle_steps_per_s", "env_steps_per_cpu_s",
+        "batch", "max_vehicles",
         "steps", "window_s", "mean_vehicles", "av_share", "compile_s",
         "wall_s", "cpu_s", "cpu_utilisation", "overflow"}``.
     """
@@ -111,6 +112,7 @@ def measure_jax_policy(
     return {
         "env_steps_per_s": env_steps / wall,
         "vehicle_steps_per_s": vehicle_steps / wall,
+        "env_steps_per_cpu_s": env_steps / max(cpu, 1e-9),
         "batch": batch,
         "max_vehicles": env.max_vehicles,
         "steps": steps,
@@ -144,7 +146,8 @@ def measure_sumo_in_the_loop(
 
     Returns:
         ``{"env_steps_per_s" (sum over the processes), "vehicle_steps_per_s",
-        "processes", "steps", "window_s", "mean_vehicles", "wall_s" (the
+        "env_steps_per_cpu_s" (all processes' env-steps per CPU second of
+        theirs), "processes", "steps", "window_s", "mean_vehicles", "wall_s" (the
         slowest process), "controller_share" (of the timed wall time),
         "overflow_vehicle_steps", "per_process": [...]}``.
     """
@@ -164,6 +167,7 @@ def measure_sumo_in_the_loop(
     return {
         "env_steps_per_s": sum(r["env_steps_per_s"] for r in rows),
         "vehicle_steps_per_s": sum(r["vehicle_steps_per_s"] for r in rows),
+        "env_steps_per_cpu_s": processes * steps / sum(r["cpu_s"] for r in rows),
         "processes": processes,
         "steps": steps,
         "window_s": [steps * cfg.simulation.dt_s, 2 * steps * cfg.simulation.dt_s],

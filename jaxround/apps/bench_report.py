@@ -150,7 +150,8 @@ def format_training(t: dict[str, Any]) -> list[str]:
         f"update, rollout {ppo['rollout_s']:.2f} s (CPU use "
         f"{ppo['rollout_cpu_utilisation']:.2f}), learning {ppo['learn_s']:.2f} s "
         f"(CPU use {_fmt(ppo.get('learn_cpu_utilisation'), '.2f')}); "
-        f"**PPO / SUMO in the loop: {t['ppo_vs_sumo_in_the_loop']:.2f}x**.",
+        f"**PPO / SUMO in the loop: {t['ppo_vs_sumo_in_the_loop']:.2f}x**, per "
+        f"CPU-second {t['ppo_vs_sumo_in_the_loop_per_cpu_s']:.2f}x.",
         "",
         f"Policy rollouts: {policy}, {t['penetration']:.0%} AVs, simulated window "
         f"{_num(window[0])}-{_num(window[1])} s after a warm-up with the policy "

@@ -120,6 +120,8 @@ def measure_training(
     Returns:
         ``{"ppo_env_steps_per_s", "jax_policy_env_steps_per_s",
         "sumo_in_the_loop_env_steps_per_s", "ppo_vs_sumo_in_the_loop",
+        "ppo_vs_sumo_in_the_loop_per_cpu_s" (env-steps per CPU second of
+        the timed processes: what a busy machine moves least),
         "jax_policy_vs_sumo_in_the_loop", "ppo": {...}, "jax_policy": {...},
         "sumo_in_the_loop": {...}, "policy": {"path", "fresh", "observer",
         "action"}, "penetration", "window_s", "what_is_timed", ...}``.
@@ -179,6 +181,8 @@ def measure_training(
         "jax_policy_env_steps_per_s": jax_policy["env_steps_per_s"],
         "sumo_in_the_loop_env_steps_per_s": in_loop,
         "ppo_vs_sumo_in_the_loop": ppo["env_steps_per_s"] / in_loop,
+        "ppo_vs_sumo_in_the_loop_per_cpu_s": ppo["env_steps_per_cpu_s"]
+        / sumo["env_steps_per_cpu_s"],
         "jax_policy_vs_sumo_in_the_loop": jax_policy["env_steps_per_s"] / in_loop,
         "ppo": ppo,
         "jax_policy": jax_policy,
@@ -225,12 +229,12 @@ def measure_ppo(
         updates: updates timed.
 
     Returns:
-        ``{"env_steps_per_s", "s_per_update", "rollout_s", "learn_s"
-        (update minus rollout), "rollout_share", "cpu_utilisation",
-        "rollout_cpu_utilisation", "learn_cpu_utilisation", "compile_s",
-        "updates", "n_envs", "n_steps", "max_vehicles", "env_steps_per_update",
-        "devices"}``; times are medians, CPU use is CPU seconds of this
-        process per wall second over the timed calls.
+        ``{"env_steps_per_s", "env_steps_per_cpu_s", "s_per_update",
+        "rollout_s", "learn_s" (update minus rollout), "rollout_share",
+        "cpu_utilisation", "rollout_cpu_utilisation", "learn_cpu_utilisation",
+        "compile_s", "updates", "n_envs", "n_steps", "max_vehicles",
+        "env_steps_per_update", "devices"}``; times are medians, CPU use is
+        CPU seconds of this process per wall second over the timed calls.
     """
     cfg = trainer.config
     t0 = time.perf_counter()
@@ -256,6 +260,7 @@ def measure_ppo(
     n = cfg.env_steps_per_update
     return {
         "env_steps_per_s": n / s_update,
+        "env_steps_per_cpu_s": n * updates / max(sum(upd_cpus), 1e-9),
         "rollout_env_steps_per_s": n / s_roll,
         "s_per_update": s_update,
         "rollout_s": s_roll,

@@ -196,6 +196,11 @@ def test_training_and_policy_rollouts_in_env_steps(result: dict[str, Any]) -> No
     assert t["jax_policy_vs_sumo_in_the_loop"] == pytest.approx(
         t["jax_policy_env_steps_per_s"] / t["sumo_in_the_loop_env_steps_per_s"]
     )
+    assert t["ppo_vs_sumo_in_the_loop_per_cpu_s"] == pytest.approx(
+        ppo["env_steps_per_cpu_s"] / loop["env_steps_per_cpu_s"]
+    )
+    cpu = sum(row["cpu_s"] for row in loop["per_process"])
+    assert loop["env_steps_per_cpu_s"] == pytest.approx(loop["processes"] * 10 / cpu)
     # an update is n_envs x n_steps env-steps; the rollout is a part of it
     assert ppo["env_steps_per_update"] == 4 * 8
     assert ppo["env_steps_per_s"] == pytest.approx(32 / ppo["s_per_update"])
@@ -223,6 +228,7 @@ def test_training_and_policy_rollouts_in_env_steps(result: dict[str, Any]) -> No
     assert "| PPO training (rollout + update) |" in text
     assert f"| SUMO in the loop, {loop['processes']} processes |" in text
     assert f"PPO / SUMO in the loop: {t['ppo_vs_sumo_in_the_loop']:.2f}x" in text
+    assert f"CPU-second {t['ppo_vs_sumo_in_the_loop_per_cpu_s']:.2f}x" in text
     assert "freshly initialised" in text
 
 
