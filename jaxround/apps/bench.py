@@ -27,19 +27,26 @@ roundabout-step (the cost analysis of a compiled one-step program), and a
 yardstick timed in the same run, the bare IDM ring of `jaxround.apps.bare_ring` at
 the best batch: what the machine gives the simplest car-following step with
 the same slots. `jaxround.apps.bench_report` formats the tables.
+
+With a PPO config (``training=``, the CLI's default), the run ends with the
+speed a user of the environment gets, in env-steps/s: PPO training, and an
+exported policy driving the AVs in JAX and in SUMO in the loop
+(`jaxround.apps.bench_training`).
 """
 
 from __future__ import annotations
 
-import os
 import sys
 import time
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import jax
 from tqdm import tqdm
 
+from agents.common.config import PPOConfig
+from agents.common.export import load_policy
 from jaxround.apps.bare_ring import measure_bare_ring
 from jaxround.apps.bench_jax import (
     DETAIL_KEYS,
@@ -56,7 +63,12 @@ from jaxround.apps.bench_report import (
     load_average,
     machine_info,
 )
-from jaxround.apps.bench_sumo import run_sumo_parallel, run_sumo_window
+from jaxround.apps.bench_sumo import run_sumo_parallel, run_sumo_window, usable_cpus
+from jaxround.apps.bench_training import (
+    DEFAULT_POLICY_BATCH,
+    DEFAULT_POLICY_SECONDS,
+    measure_training,
+)
 from jaxround.core.params import EnvParams
 from jaxround.core.state import Schedule
 from jaxround.envs.roundabout import RoundaboutEnv, make
@@ -95,6 +107,10 @@ def run_benchmark(
     slot_batch: int = DEFAULT_SLOT_BATCH,
     seed: int = 0,
     sumo_processes: int | None = None,
+    training: PPOConfig | None = None,
+    policy: str | Path | None = None,
+    policy_batch: int = DEFAULT_POLICY_BATCH,
+    policy_seconds: float = DEFAULT_POLICY_SECONDS,
 ) -> dict[str, Any]:
     """Measure SUMO and the JAX environment on one scenario, in this one call.
 
@@ -113,8 +129,16 @@ def run_benchmark(
         progress: progress bars and notes on stderr.
         slot_batch: batch of the slot-scaling runs.
         seed: schedule seed of SUMO's run (and of roundabout 0 of JAX's).
-        sumo_processes: SUMO processes run at once for the parallel peer;
-            default one per usable core.
+        sumo_processes: SUMO processes run at once for the parallel peer
+            (and for SUMO in the loop); default one per usable core.
+        training: a PPO config: also time its training, and a policy of it
+            driving the AVs in JAX and in SUMO (`jaxround.apps.bench_training`,
+            last in the run); None: not.
+        policy: the exported policy of those rollouts (with `training`);
+            None: a freshly initialised network of the config.
+        policy_batch: roundabouts of the JAX policy rollout (with `training`).
+        policy_seconds: warm-up and timed window of the policy rollouts,
+            simulated seconds (with `training`).
 
     Returns:
         ``{"sumo_vehicle_steps_per_s": x, "sumo_parallel": {"processes",
@@ -128,7 +152,8 @@ def run_benchmark(
         "jax_slot_overflow": x, ...}``; "steps_per_s" counts roundabout-steps
         (B per batched step); "jax_slot_overflow" is the largest batch's
         vehicle-steps of slot overflow at M (it runs every smaller batch's
-        schedules).
+        schedules); with `training`, "training" holds
+        `jaxround.apps.bench_training.measure_training`'s result.
     """
     batches = [_positive_int(b, "batches") for b in batches]
     slot_sizes = [_positive_int(m, "slot_sizes") for m in slot_sizes]
@@ -140,6 +165,10 @@ def run_benchmark(
     sumo_processes = _positive_int(sumo_processes, "sumo_processes")
     if not batches:
         raise ValueError("batches: expected at least one batch size")
+    if policy is not None and training is None:
+        raise ValueError("policy: only with a training config (training=...)")
+    if policy is not None:
+        load_policy(policy)  # a missing or damaged policy fails before any run
     dt = cfg.simulation.dt_s
     steps = round(float(sim_seconds) / dt)
     if not sim_seconds > 0 or steps < 1:
@@ -200,6 +229,13 @@ def run_benchmark(
     )
     bare["ratio_vs_sumo"] = bare["vehicle_steps_per_s"] / sumo_rate
     bare.update(flop_rate(bare["flops_per_roundabout_step"], bare))
+    trained = None
+    if training is not None:
+        trained = measure_training(
+            training, policy=policy, policy_batch=policy_batch,
+            policy_seconds=policy_seconds, sumo_processes=sumo_processes,
+            seed=seed, progress=progress,
+        )  # fmt: skip
     return {
         "sumo_vehicle_steps_per_s": sumo_rate,
         "sumo_parallel": parallel,
@@ -230,6 +266,7 @@ def run_benchmark(
         "sumo": sumo,
         "code": code,
         "what_is_timed": WHAT_IS_TIMED,
+        **({"training": trained} if trained is not None else {}),
         "total_wall_s": time.perf_counter() - started,
     }
 
@@ -284,13 +321,6 @@ def _slot_row(r: dict[str, Any], m: int, batch: int) -> dict[str, Any]:
         "cpu_utilisation": r["cpu_utilisation"],
         "repeats": r["repeats"],
     }
-
-
-def usable_cpus() -> int:
-    """The cores this process may run on (its affinity), else the CPU count."""
-    if hasattr(os, "sched_getaffinity"):
-        return len(os.sched_getaffinity(0))
-    return os.cpu_count() or 1
 
 
 def _positive_int(x: Any, name: str) -> int:

@@ -88,6 +88,8 @@ def format_benchmark(result: dict[str, Any]) -> str:
                 f"| {_fmt(row.get('cpu_utilisation'), '.2f')} "
                 f"| {_fmt(row.get('compile_s'), '.1f')} |"
             )
+    if result.get("training"):
+        lines += ["", *format_training(result["training"])]
     machine = result.get("machine", {})
     if machine:
         cpu = machine.get("cpu_model") or machine.get("machine", "?")
@@ -108,6 +110,54 @@ def format_benchmark(result: dict[str, Any]) -> str:
         changes = " with local changes" if code.get("local_changes") else ""
         lines += ["", f"Code: commit {code['commit'][:12]}{changes}."]
     return "\n".join(lines) + "\n"
+
+
+def format_training(t: dict[str, Any]) -> list[str]:
+    """The lines of `jaxround.apps.bench_training.measure_training`'s result:
+    PPO, the JAX policy rollout and SUMO in the loop in env-steps/s."""
+    ppo, jp, loop = t["ppo"], t["jax_policy"], t["sumo_in_the_loop"]
+    rollout_ratio = ppo["rollout_env_steps_per_s"] / loop["env_steps_per_s"]
+    window = t["window_s"]
+    policy = (
+        "a freshly initialised network (throughput only)"
+        if t["policy"]["fresh"]
+        else f"`{t['policy']['path']}`"
+    )
+    return [
+        "Training and policy rollouts, in env-steps/s (one env-step: one dt step "
+        "of one roundabout):",
+        "",
+        "| what | env-steps/s | vs SUMO in the loop | vehicle-steps/s "
+        "| roundabouts | M | CPU use | compile (s) |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
+        f"| PPO training (rollout + update) | {ppo['env_steps_per_s']:,.0f} "
+        f"| {t['ppo_vs_sumo_in_the_loop']:.2f} | - | {ppo['n_envs']} "
+        f"| {ppo['max_vehicles']} | {ppo['cpu_utilisation']:.2f} "
+        f"| {ppo['compile_s']:.1f} |",
+        f"| PPO rollout alone | {ppo['rollout_env_steps_per_s']:,.0f} "
+        f"| {rollout_ratio:.2f} | - | {ppo['n_envs']} | {ppo['max_vehicles']} "
+        f"| {ppo['rollout_cpu_utilisation']:.2f} | - |",
+        f"| JAX, exported policy | {jp['env_steps_per_s']:,.0f} "
+        f"| {t['jax_policy_vs_sumo_in_the_loop']:.2f} "
+        f"| {jp['vehicle_steps_per_s']:,.0f} | {jp['batch']} | {jp['max_vehicles']} "
+        f"| {jp['cpu_utilisation']:.2f} | {jp['compile_s']:.1f} |",
+        f"| SUMO in the loop, {loop['processes']} processes "
+        f"| {loop['env_steps_per_s']:,.0f} | 1.00 "
+        f"| {loop['vehicle_steps_per_s']:,.0f} | {loop['processes']} | - | - | - |",
+        "",
+        f"PPO (`{t['training_config'].get('scenario')}`, {ppo['n_envs']} x "
+        f"{ppo['n_steps']} env-steps per update): {ppo['s_per_update']:.2f} s per "
+        f"update, rollout {ppo['rollout_s']:.2f} s (CPU use "
+        f"{ppo['rollout_cpu_utilisation']:.2f}), learning {ppo['learn_s']:.2f} s "
+        f"(CPU use {_fmt(ppo.get('learn_cpu_utilisation'), '.2f')}); "
+        f"**PPO / SUMO in the loop: {t['ppo_vs_sumo_in_the_loop']:.2f}x**, per "
+        f"CPU-second {t['ppo_vs_sumo_in_the_loop_per_cpu_s']:.2f}x.",
+        "",
+        f"Policy rollouts: {policy}, {t['penetration']:.0%} AVs, simulated window "
+        f"{_num(window[0])}-{_num(window[1])} s after a warm-up with the policy "
+        f"driving; SUMO's controller took {loop['controller_share']:.0%} of its "
+        "timed wall time.",
+    ]
 
 
 # ------------------------------------------------------------------ SUMO

@@ -14,6 +14,7 @@ the median is reported.
 from __future__ import annotations
 
 import multiprocessing
+import os
 import statistics
 import tempfile
 import time
@@ -84,6 +85,13 @@ def run_sumo_parallel(
             for r in rows
         ],
     }
+
+
+def usable_cpus() -> int:
+    """The cores this process may run on (its affinity), else the CPU count."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
 
 
 #: The barrier of `run_sumo_parallel`'s workers (set as each worker starts).

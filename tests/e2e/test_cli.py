@@ -94,6 +94,21 @@ def test_bad_config_fails_before_work(
         main(["sumo", "--penetration", "140"])
 
 
+def test_bench_flags_fail_before_work(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    missing = tmp_path / "none.npz"
+    argv = ["bench", "--json", "--no-progress", "--policy", str(missing)]
+    assert main([*argv, "--no-training"]) == 2
+    assert "--policy: not with --no-training" in capsys.readouterr().err
+    assert main(argv) == 2
+    assert f"policy file {missing} does not exist" in capsys.readouterr().err
+    assert main(["bench", "--json", "--train-config", str(tmp_path / "x.yaml")]) == 2
+    assert "x.yaml" in capsys.readouterr().err
+    assert main(["bench", "--profile", "--policy", str(missing)]) == 2
+    assert "not with --profile" in capsys.readouterr().err
+
+
 @pytest.mark.sumo
 def test_parity_redoes_runs_whose_slots_overflow(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]

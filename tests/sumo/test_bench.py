@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from agents.common.config import load_ppo_config
 from jaxround.apps import bare_ring
 from jaxround.apps.bench import (
     batch_schedules,
@@ -25,6 +26,20 @@ from tests.conftest import quick_compilation, small_config
 
 BATCHES = (4,)
 SLOT_SIZES = (8, 16)
+#: The timed training: milan's network, short episodes, 8 slots, 4 x 8
+#: env-steps per update (the policy rollouts run the full milan demand).
+TINY_PPO = dict(
+    demand_window_s=20.0,
+    episode_s=10.0,
+    max_vehicles=8,
+    n_envs=4,
+    n_steps=8,
+    total_env_steps=4 * 8 * 4,
+    hidden=[16, 16],
+    epochs=2,
+    minibatches=2,
+)
+POLICY_BATCH = 2
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -46,6 +61,9 @@ def result() -> dict[str, Any]:
         slot_sizes=SLOT_SIZES,
         progress=False,
         slot_batch=4,
+        training=load_ppo_config("ppo_milan").replace(**TINY_PPO),
+        policy_batch=POLICY_BATCH,
+        policy_seconds=5.0,
     )
 
 
@@ -164,6 +182,56 @@ def test_format_is_a_markdown_table(result: dict[str, Any]) -> None:
     assert "| bare IDM ring |" in text
 
 
+@pytest.mark.sumo
+def test_training_and_policy_rollouts_in_env_steps(result: dict[str, Any]) -> None:
+    t = result["training"]
+    ppo, jp, loop = t["ppo"], t["jax_policy"], t["sumo_in_the_loop"]
+    for x in (t["ppo_env_steps_per_s"], t["jax_policy_env_steps_per_s"],
+              t["sumo_in_the_loop_env_steps_per_s"], ppo["rollout_env_steps_per_s"],
+              jp["vehicle_steps_per_s"], loop["vehicle_steps_per_s"]):  # fmt: skip
+        assert _positive(x)
+    assert t["ppo_vs_sumo_in_the_loop"] == pytest.approx(
+        t["ppo_env_steps_per_s"] / t["sumo_in_the_loop_env_steps_per_s"]
+    )
+    assert t["jax_policy_vs_sumo_in_the_loop"] == pytest.approx(
+        t["jax_policy_env_steps_per_s"] / t["sumo_in_the_loop_env_steps_per_s"]
+    )
+    assert t["ppo_vs_sumo_in_the_loop_per_cpu_s"] == pytest.approx(
+        ppo["env_steps_per_cpu_s"] / loop["env_steps_per_cpu_s"]
+    )
+    cpu = sum(row["cpu_s"] for row in loop["per_process"])
+    assert loop["env_steps_per_cpu_s"] == pytest.approx(loop["processes"] * 10 / cpu)
+    # an update is n_envs x n_steps env-steps; the rollout is a part of it
+    assert ppo["env_steps_per_update"] == 4 * 8
+    assert ppo["env_steps_per_s"] == pytest.approx(32 / ppo["s_per_update"])
+    assert ppo["rollout_s"] == pytest.approx(ppo["s_per_update"] - ppo["learn_s"])
+    assert ppo["max_vehicles"] == 8
+    assert _positive(ppo["cpu_utilisation"]) and _positive(ppo["compile_s"])
+    # both policy rollouts drive the same window of the full scenario, all AVs
+    assert t["penetration"] == 1.0 and t["policy"]["fresh"]
+    assert t["window_s"] == pytest.approx([5.0, 10.0])
+    assert loop["window_s"] == pytest.approx(t["window_s"])
+    assert jp["batch"] == POLICY_BATCH
+    assert jp["steps"] == loop["steps"] == 10
+    assert jp["env_steps_per_s"] == pytest.approx(POLICY_BATCH * 10 / jp["wall_s"])
+    assert jp["mean_vehicles"] > 0 and jp["av_share"] == 1.0
+    assert jp["overflow"] == 0
+    # one SUMO process per core, each driving AVs with the policy
+    assert loop["processes"] == usable_cpus() == len(loop["per_process"])
+    assert loop["env_steps_per_s"] == pytest.approx(
+        sum(10 / row["wall_s"] for row in loop["per_process"])
+    )
+    assert loop["mean_vehicles"] > 0
+    assert all(row["commands"] > 0 for row in loop["per_process"])
+    assert 0 < loop["controller_share"] < 1
+    text = format_benchmark(result)
+    assert "| PPO training (rollout + update) |" in text
+    assert f"| SUMO in the loop, {loop['processes']} processes |" in text
+    assert f"PPO / SUMO in the loop: {t['ppo_vs_sumo_in_the_loop']:.2f}x" in text
+    assert f"CPU-second {t['ppo_vs_sumo_in_the_loop_per_cpu_s']:.2f}x" in text
+    assert "freshly initialised" in text
+
+
 @pytest.mark.parametrize(
     "kwargs",
     [
@@ -173,6 +241,7 @@ def test_format_is_a_markdown_table(result: dict[str, Any]) -> None:
         {"max_vehicles": 0},
         {"slot_sizes": (16, 2.5)},
         {"sumo_processes": 0},
+        {"policy": "policy.npz"},  # a policy without a training config
     ],
 )
 def test_bad_arguments_fail_before_running(kwargs: dict[str, Any]) -> None:
@@ -212,3 +281,21 @@ def test_bare_ring_keeps_its_vehicles_apart() -> None:
 def test_bare_ring_rejects_a_bad_occupancy() -> None:
     with pytest.raises(ValueError, match="occupancy"):
         bare_ring.measure_bare_ring(8, 2, occupancy=0.0, steps=2, dt=0.5, n_substeps=2)
+
+
+def test_a_missing_policy_fails_before_running(tmp_path: Any) -> None:
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        run_benchmark(
+            small_config(), progress=False, policy=tmp_path / "none.npz",
+            training=load_ppo_config("ppo_milan").replace(**TINY_PPO),
+        )  # fmt: skip
+
+
+def test_measure_training_rejects_bad_numbers() -> None:
+    from jaxround.apps.bench_training import measure_training
+
+    cfg = load_ppo_config("ppo_milan").replace(**TINY_PPO)
+    for kwargs in ({"updates": 0}, {"policy_batch": 0}, {"penetration": 1.5},
+                   {"policy_seconds": 0.0}, {"sumo_processes": 0}):  # fmt: skip
+        with pytest.raises(ValueError):
+            measure_training(cfg, progress=False, **kwargs)

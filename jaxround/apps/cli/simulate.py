@@ -145,6 +145,8 @@ def cmd_bench(args: argparse.Namespace) -> None:
 
     if args.batch is not None and not args.profile:
         raise UsageError("--batch: only with --profile (the benchmark runs its own)")
+    if args.profile and (args.policy is not None or args.train_config is not None):
+        raise UsageError("--policy, --train-config: not with --profile (no training)")
     cfg = load_config(args.config)
     if args.profile:
         from jaxround.apps.bench_profile import (
@@ -166,7 +168,21 @@ def cmd_bench(args: argparse.Namespace) -> None:
         else:
             print(format_profile(result))
         return
-    result = run_benchmark(cfg, progress=not args.no_progress)
+    if args.no_training and args.policy is not None:
+        raise UsageError("--policy: not with --no-training (it drives the rollouts)")
+    training = None
+    try:
+        if not args.no_training:
+            from agents.common.config import load_ppo_config
+
+            training = load_ppo_config(args.train_config)
+            if args.config is not None:
+                training = training.replace(scenario=args.config)
+        result = run_benchmark(
+            cfg, progress=not args.no_progress, training=training, policy=args.policy
+        )
+    except (ValueError, FileNotFoundError) as err:
+        raise UsageError(str(err)) from None
     warn_slot_overflow(result, "bench")
     if args.json:
         print_json(result)
@@ -239,6 +255,19 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--batch", type=positive_int, default=None,
         help="roundabouts stepped together in the profile (default 256)",
+    )  # fmt: skip
+    p.add_argument(
+        "--no-training", action="store_true",
+        help="skip PPO training and the policy rollouts (JAX, SUMO in the loop)",
+    )  # fmt: skip
+    p.add_argument(
+        "--policy", type=Path, default=None, metavar="P",
+        help="exported policy of the rollouts (default: a freshly initialised "
+        "network of the training config; the same speed, meaningless actions)",
+    )  # fmt: skip
+    p.add_argument(
+        "--train-config", default=None, metavar="PPO_YAML",
+        help="PPO config timed (default ppo_milan; its scenario: --config if given)",
     )  # fmt: skip
     p.set_defaults(func=cmd_bench)
 
