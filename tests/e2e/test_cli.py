@@ -113,23 +113,23 @@ def test_bench_flags_fail_before_work(
 def test_parity_redoes_runs_whose_slots_overflow(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    # 2 slots for a roundabout that holds 76: insertions wait for a slot, so
-    # the JAX runs are redone with more slots; stderr says so, the JSON
-    # carries every M tried and no overflow
+    # 4 slots for 40 vehicles in a minute: insertions wait for a slot, so the
+    # JAX runs are redone with more slots; stderr says so, the JSON carries
+    # every M tried and no overflow
     d = builtin_dict("milan")
     d["demand"].update(n_vehicles=40, duration_s=60.0)
     d["simulation"]["max_vehicles"] = 8  # the config's, overridden by the flag
     path = tmp_path / "tight.yaml"
     path.write_text(yaml.safe_dump(d))
-    argv = ["parity", "--config", str(path), "--seeds", "1", "--max-vehicles", "2",
+    argv = ["parity", "--config", str(path), "--seeds", "1", "--max-vehicles", "4",
             "--workers", "1", "--json", "--no-progress"]  # fmt: skip
     assert main(argv) == 0
     captured = capsys.readouterr()
     report = json.loads(captured.out)
     tried = report["max_vehicles_tried"]
-    assert tried[:2] == [2, 4] and report["max_vehicles"] == tried[-1]
+    assert tried[:2] == [4, 8] and report["max_vehicles"] == tried[-1]
     assert report["jax_slot_overflow"] == 0
-    assert "max_vehicles = 2; redone with 4 slots" in captured.err
+    assert "max_vehicles = 4; redone with 8 slots" in captured.err
 
 
 @pytest.mark.sumo

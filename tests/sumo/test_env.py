@@ -370,7 +370,7 @@ def test_make_milan_defaults_and_shapes() -> None:
     env, params = make("milan")
     cfg = load_config("milan")
     assert isinstance(env, RoundaboutEnv) and isinstance(params, EnvParams)
-    m = 76  # the road's capacity (`jaxround.core.capacity`, tests/test_capacity.py)
+    m = 32  # the slots Milan's traffic needs (`jaxround.envs.slots`)
     assert env.max_vehicles == m and env.n_schedule == cfg.demand.n_vehicles == 1540
     assert env.n_legs == 4 and env.network.n_routes == 12
     assert env.episode_s == cfg.demand.duration_s + 300.0

@@ -63,12 +63,18 @@ def jax_insertion_speeds(cfg: Any, schedule: Schedule) -> np.ndarray:
     departure time, with every vehicle before it already gone."""
     env, params = make(cfg)
     _, start = env.reset_to_schedule(env.schedule_from_numpy(schedule), params)
+    legs = jnp.arange(env.n_legs)
 
     @jax.jit
     def insert(k: jax.Array) -> jax.Array:
         # (reset may have inserted the first vehicle already: start empty)
         gone = jnp.arange(env.n_schedule) < k
-        state = start.replace(active=jnp.zeros_like(start.active), inserted=gone)
+        origin = start.schedule.origin
+        per_leg = jnp.sum(gone[None, :] & (origin[None, :] == legs[:, None]), axis=1)
+        state = start.replace(
+            active=jnp.zeros_like(start.active), inserted=gone,
+            leg_inserted=per_leg.astype(jnp.int32),
+        )  # fmt: skip
         t = jnp.float32(GAP_S) * k
         after = departures.insert_departures(
             env.net, state, params, t, dt=env.dt, n_substeps=env.n_substeps

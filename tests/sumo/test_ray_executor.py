@@ -16,8 +16,8 @@ ray = pytest.importorskip("ray")
 from jaxround.apps.cli.main import main  # noqa: E402
 from sumo_export import executors  # noqa: E402
 from sumo_export.evaluate import (  # noqa: E402
+    compare_drivers,
     policy_controller,
-    summarise_runs,
     sumo_runs,
 )
 from tests.conftest import builtin_dict, small_config  # noqa: E402
@@ -100,10 +100,9 @@ def test_evaluate_in_sumo_on_ray_gives_the_local_pools_numbers(
     factory = policy_controller(cfg, policy)
     runs = sumo_runs(cfg, [0.5], [cfg.simulation.seed], 2, False, factory)
     plain = sumo_runs(cfg, [0.5], [cfg.simulation.seed], 2, False)
-    local = {
-        "sumo": {"50": summarise_runs(cfg, runs[0.5])["mean"]},
-        "sumo_uncontrolled": {"50": summarise_runs(cfg, plain[0.5])["mean"]},
-    }
+    # compared as evaluate compares them: over the same vehicles, one scale
+    both = compare_drivers(cfg, {"sumo": runs, "sumo_uncontrolled": plain})
+    local = {key: {"50": both[key][0.5]["mean"]} for key in both}
     for key in ("sumo", "sumo_uncontrolled"):
         assert traffic_numbers(written[key]) == traffic_numbers(local[key]), key
     assert written["sumo"]["50"]["all"] != written["sumo_uncontrolled"]["50"]["all"]

@@ -216,8 +216,8 @@ def test_parity_runs_redone_with_more_slots(capsys: pytest.CaptureFixture) -> No
 
     d = builtin_dict()  # Milan at twice its demand, for two minutes
     d["demand"]["n_vehicles"], d["demand"]["duration_s"] = 100, 120.0
-    runs = run_jax(config_from_dict(d), [0], max_vehicles=8, cap_s=120.0)
+    runs = run_jax(config_from_dict(d), [0], max_vehicles=12, cap_s=120.0)
     tried = runs[0]["max_vehicles_tried"]
-    assert tried[:2] == [8, 16] and runs[0]["max_vehicles"] == tried[-1]
+    assert tried[:2] == [12, 24] and runs[0]["max_vehicles"] == tried[-1]
     assert runs[0]["overflow"] == 0 and runs[0]["records"].arrived.sum() > 50
-    assert "max_vehicles = 8; redone with 16 slots" in capsys.readouterr().err
+    assert "max_vehicles = 12; redone with 24 slots" in capsys.readouterr().err
