@@ -213,5 +213,8 @@ def test_a_ride_of_the_default_length_and_the_latency_part_by_part(
     assert driving_s >= 60.0
     assert statistics.median(throttle) > 0.9  # held
     assert len(records) >= 20
-    assert all(r.get("wait") is not None for r in records)  # the server said
+    # the server's parts of each input (a timing message a slow page dropped,
+    # counted in frames_dropped, leaves one record without them)
+    told = [r for r in records if r.get("wait") is not None]
+    assert len(told) >= 0.9 * len(records)
     assert statistics.median(r["total"] for r in records) < 100.0
