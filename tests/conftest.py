@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import os
+import shutil
 from collections.abc import Iterator
 from importlib import resources
 from pathlib import Path
@@ -23,13 +25,23 @@ def builtin_dict(name: str = "milan") -> dict[str, Any]:
     return copy.deepcopy(yaml.safe_load(text))
 
 
+#: JAX slots of `small_config`'s scenarios: Milan's own at its full demand.
+SMALL_SLOTS = 32
+
+
 def small_config(
     name: str = "milan",
     n_vehicles: int = 150,
     duration_s: float = 600.0,
     **simulation: Any,
 ) -> ScenarioConfig:
-    """A built-in scenario with fewer vehicles, for quick SUMO runs."""
+    """A built-in scenario with fewer vehicles, for quick SUMO runs.
+
+    Its JAX slots are `SMALL_SLOTS` unless given (``max_vehicles=None``: sized
+    from the traffic, `jaxround.envs.slots`, which runs the scenario first);
+    these demands never fill them, and parity redoes a run that would.
+    """
+    simulation.setdefault("max_vehicles", SMALL_SLOTS)
     d = builtin_dict(name)
     d["demand"]["n_vehicles"] = n_vehicles
     d["demand"]["duration_s"] = duration_s
@@ -73,25 +85,52 @@ def quick_compilation(cache_dir: Path) -> Iterator[None]:
         cc.reset_cache()
 
 
-@pytest.fixture(autouse=True)
-def _private_compilation_cache(
-    tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch
-) -> Iterator[None]:
-    """Keep the tests' XLA cache out of the user's home, and contained to a test.
+#: Set by the controlling pytest process: a cache folder shared by the whole
+#: test session (every xdist worker and every subprocess), removed at its end.
+SESSION_CACHE_ENV = "JAXROUND_TEST_SESSION_CACHE"
 
-    The CLI and the notebooks keep compiled programs in
-    ``$XDG_CACHE_HOME/jaxround/xla``
-    (`agents.common.compilation.enable_compilation_cache`); under the tests
-    that folder is a temporary one (kernels and subprocesses inherit it), so
-    a run neither writes into the user's cache nor depends on what an earlier
-    run left there. A test that turns the cache on in this
-    process has it turned back off afterwards.
+
+def pytest_configure(config: pytest.Config) -> None:
+    """One cache for the session: XLA programs and slot sizings, fresh per run.
+
+    ``XDG_CACHE_HOME`` points at a new temporary folder (the CLI, the
+    notebooks' kernels and `jaxround.envs.slots` keep their caches under it),
+    and this process compiles into ``<it>/jaxround/xla``. The same program is
+    then compiled once per session, not once per test, worker and subprocess
+    that builds it (most tests build their own environment, whose step is the
+    same XLA program). A run neither reads the user's cache nor depends on
+    what an earlier run left.
     """
+    import tempfile
+
+    if SESSION_CACHE_ENV not in os.environ:  # the controller, before any worker
+        os.environ[SESSION_CACHE_ENV] = tempfile.mkdtemp(prefix="jaxround-tests-")
+        config.stash[_OWNS_CACHE] = True
+    cache = os.environ[SESSION_CACHE_ENV]
+    os.environ["XDG_CACHE_HOME"] = cache
+    jax.config.update("jax_compilation_cache_dir", session_xla_cache())
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    if config.stash.get(_OWNS_CACHE, False):
+        shutil.rmtree(os.environ.pop(SESSION_CACHE_ENV), ignore_errors=True)
+
+
+_OWNS_CACHE = pytest.StashKey[bool]()
+
+
+def session_xla_cache() -> str:
+    """The session's folder of compiled XLA programs."""
+    return str(Path(os.environ[SESSION_CACHE_ENV]) / "jaxround" / "xla")
+
+
+@pytest.fixture(autouse=True)
+def _session_compilation_cache() -> Iterator[None]:
+    """A test that points the XLA cache elsewhere has it pointed back after."""
     from jax.experimental.compilation_cache import compilation_cache as cc
 
-    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path_factory.getbasetemp() / "cache"))
-    before = jax.config.jax_compilation_cache_dir
     yield
-    if jax.config.jax_compilation_cache_dir != before:
-        jax.config.update("jax_compilation_cache_dir", before)
+    if jax.config.jax_compilation_cache_dir != session_xla_cache():
+        jax.config.update("jax_compilation_cache_dir", session_xla_cache())
         cc.reset_cache()

@@ -5,6 +5,7 @@ SUMO; a zero assertiveness is the vType itself; bad specs fail first."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -16,7 +17,7 @@ from jaxround.apps.drivers import parse_driver
 from jaxround.apps.parity import parity_report
 from jaxround.envs.rollout import run_until_left, uncontrolled_policy
 from jaxround.envs.roundabout import make
-from jaxround.scenario.config import config_from_dict
+from jaxround.scenario.config import ScenarioConfig, config_from_dict
 from jaxround.scenario.schedule import make_schedule
 from tests.conftest import small_config, tree_equal
 
@@ -57,10 +58,24 @@ def test_zero_assertiveness_is_the_vtype() -> None:
     assert np.all(np.isfinite(np.asarray(a.arrival_s)))
 
 
+def driven_config() -> ScenarioConfig:
+    return small_config("milan", n_vehicles=60, duration_s=150.0)
+
+
+@pytest.fixture(scope="module")
+def uncontrolled_report() -> dict[str, Any]:
+    """Parity of the uncontrolled vType on the drivers' scenario (seed 3)."""
+    return parity_report(
+        driven_config(), [3], workers=1, show_progress=False, penetration=1.0
+    )
+
+
 @pytest.mark.sumo
 @pytest.mark.parametrize("controller", ["cruise:6", "assertive"])
-def test_same_crossing_times_in_both_simulators(controller, tmp_path: Path) -> None:
-    cfg = small_config("milan", n_vehicles=60, duration_s=150.0)
+def test_same_crossing_times_in_both_simulators(
+    controller: str, tmp_path: Path, uncontrolled_report: dict[str, Any]
+) -> None:
+    cfg = driven_config()
     if controller == "assertive":
         controller = str(constant_policy(tmp_path, 1.0))
     report = parity_report(
@@ -73,7 +88,7 @@ def test_same_crossing_times_in_both_simulators(controller, tmp_path: Path) -> N
     assert report["rel_err"]["mean_crossing_time_s"] < 0.01
     assert report["sumo_collisions"] == 0
     # the driver did something: not the uncontrolled vType's crossing times
-    plain = parity_report(cfg, [3], workers=1, show_progress=False, penetration=1.0)
+    plain = uncontrolled_report
     assert (
         abs(report["sumo"]["all"]["mean_crossing_time_s"]
             - plain["sumo"]["all"]["mean_crossing_time_s"]) > 0.2
