@@ -30,6 +30,7 @@ Shapes: K settings, S schedules, M slots, D = 5 setting numbers.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -244,17 +245,28 @@ class SearchProblem:
     ) -> None:
         self.cfg = cfg
         self.penetration = float(penetration)
-        self.seeds = [int(s) for s in seeds]
         self.objective = objective
         self.env, self.params = make(
             cfg, max_vehicles=max_vehicles, episode_s=cfg.demand.duration_s + DRAIN_S
         )
+        self._use_seeds(seeds)
+        self._compiled: dict[str, Callable] = {}
+
+    def _use_seeds(self, seeds: Sequence[int]) -> None:
+        self.seeds = [int(s) for s in seeds]
         self.numpy_schedules = [
-            make_schedule(cfg, seed=s, penetration=self.penetration) for s in self.seeds
+            make_schedule(self.cfg, seed=s, penetration=self.penetration)
+            for s in self.seeds
         ]
         one = [self.env.schedule_from_numpy(s) for s in self.numpy_schedules]
         self.schedules = jax.tree.map(lambda *x: jnp.stack(x), *one)
-        self._compiled: dict[str, Callable] = {}
+
+    def with_seeds(self, seeds: Sequence[int]) -> SearchProblem:
+        """The same environment and compiled programs on other schedules (a
+        program compiled for S schedules serves any S' = S without compiling)."""
+        other = copy.copy(self)
+        other._use_seeds(seeds)
+        return other
 
     def score(
         self, name: str, steer_of: Callable[[jax.Array], Steer], batch: jax.Array

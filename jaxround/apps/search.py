@@ -154,7 +154,7 @@ def run_search(
     state_trace = search_controller(search, best, budget)
     t_state = time.perf_counter() - t0 - t_constant
 
-    check = SearchProblem(cfg, penetration, eval_seeds, objective, max_vehicles)
+    check = search.with_seeds(eval_seeds)
     vtype = vtype_setting(cfg)
     constants = check.score_settings(np.stack([vtype, best]))
     state = score_controllers(check, best, state_trace.best[None])
