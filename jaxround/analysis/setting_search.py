@@ -19,7 +19,11 @@ schedule, over ALL vehicles that arrived (human drivers too):
 - ``time_s``: mean crossing time (arrival minus scheduled departure), s;
 - ``co2_g``: mean CO2 per vehicle, g;
 - ``objective``: ``time_weight * time_s + co2_weight * co2_g``, the system
-  reward's weights (1 per s, 0.5 per g by default);
+  reward's weights (1 per s, 0.5 per g by default); with
+  ``Objective.charge_exit`` the time and CO2 still owed by vehicles that
+  left below the speed limit (``exit_time_s``, ``exit_co2_g``,
+  `jaxround.analysis.exit_debt`, from each vehicle's speed at the start of
+  its last step) are added to both;
 - ``missing``: scheduled vehicles that had not arrived when the episode hit
   its step limit (0 in a valid score);
 - ``overflow``: insertions that waited for a free slot (0 in a valid score:
@@ -40,6 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from jaxround.analysis.exit_debt import debt_table, exit_debt
 from jaxround.core.params import EnvParams
 from jaxround.core.state import EnvState, Schedule
 from jaxround.envs.roundabout import RoundaboutEnv, make
@@ -66,6 +71,7 @@ class Objective:
 
     time_weight: float = 1.0
     co2_weight: float = 0.5
+    charge_exit: bool = False  # add what slow leavers still owe
 
     def __call__(self, time_s: jax.Array, co2_g: jax.Array) -> jax.Array:
         return self.time_weight * time_s + self.co2_weight * co2_g
@@ -189,35 +195,66 @@ Steer = Callable[[EnvState], tuple[EnvParams, jax.Array]]
 
 def run_steered(
     env: RoundaboutEnv, schedule: Schedule, params: EnvParams, steer: Steer
-) -> EnvState:
+) -> tuple[EnvState, jax.Array]:
     """Run from `schedule` until every vehicle has left or the episode's
     steps are spent; each step `steer` chooses the params and the action.
-    (`jaxround.envs.rollout.run_until_left`, with params that may change.)"""
+    (`jaxround.envs.rollout.run_until_left`, with params that may change.)
+
+    Returns:
+        (final state, exit speeds float (N,)): each vehicle's speed at the
+        start of the step in which it left, m/s (NaN if it did not).
+    """
     _, state = env.reset_to_schedule(schedule, params)
     key = jax.random.PRNGKey(0)  # the exact step draws nothing
+    exit_speed = jnp.full(state.arrival_s.shape, jnp.nan, jnp.float32)
 
-    def running(state: EnvState) -> jax.Array:
+    def running(carry: tuple[EnvState, jax.Array]) -> jax.Array:
+        state = carry[0]
         left = jnp.all(~jnp.isnan(state.arrival_s))
         return (state.step < env.episode_steps) & ~left
 
-    def body(state: EnvState) -> EnvState:
+    def body(carry: tuple[EnvState, jax.Array]) -> tuple[EnvState, jax.Array]:
+        state, exit_speed = carry
         step_params, action = steer(state)
-        return env.step_env(key, state, action, step_params)[1]
+        new = env.step_env(key, state, action, step_params)[1]
+        vid = jnp.maximum(state.vid, 0)
+        left_now = state.active & ~jnp.isnan(new.arrival_s[vid])
+        where = jnp.where(left_now, state.vid, exit_speed.shape[0])  # else dropped
+        return new, exit_speed.at[where].set(state.speed, mode="drop")
 
-    return jax.lax.while_loop(running, body, state)
+    return jax.lax.while_loop(running, body, (state, exit_speed))
 
 
-def episode_scores(state: EnvState, objective: Objective) -> dict[str, jax.Array]:
-    """Scores of a finished episode (module docstring), float ()."""
+def episode_scores(
+    state: EnvState,
+    exit_speed: jax.Array,
+    objective: Objective,
+    debt: tuple[np.ndarray, np.ndarray, np.ndarray],
+) -> dict[str, jax.Array]:
+    """Scores of a finished episode (module docstring), float ().
+
+    Args:
+        exit_speed: float (N,) from `run_steered`.
+        debt: `exit_debt.debt_table` of the exit legs' speed limit.
+    """
     arrival = state.arrival_s
     arrived = ~jnp.isnan(arrival)
     n = jnp.maximum(jnp.sum(arrived), 1)
-    time_s = jnp.sum(jnp.where(arrived, arrival - state.schedule.depart_s, 0.0)) / n
-    co2_g = jnp.sum(jnp.where(arrived, state.stats.trip_co2_mg, 0.0)) / n / 1000.0
+
+    def mean(x: jax.Array) -> jax.Array:
+        return jnp.sum(jnp.where(arrived, x, 0.0)) / n
+
+    time_s = mean(arrival - state.schedule.depart_s)
+    co2_g = mean(state.stats.trip_co2_mg) / 1000.0
+    owed_co2, owed_time = exit_debt(jnp.nan_to_num(exit_speed), debt)
+    exit_co2_g, exit_time_s = mean(owed_co2), mean(owed_time)
+    charged = objective(time_s + exit_time_s, co2_g + exit_co2_g)
     return {
-        "objective": objective(time_s, co2_g),
+        "objective": charged if objective.charge_exit else objective(time_s, co2_g),
         "time_s": time_s,
         "co2_g": co2_g,
+        "exit_time_s": exit_time_s,
+        "exit_co2_g": exit_co2_g,
         "missing": jnp.sum(~arrived),
         "overflow": state.stats.overflow,
     }
@@ -249,6 +286,8 @@ class SearchProblem:
         self.env, self.params = make(
             cfg, max_vehicles=max_vehicles, episode_s=cfg.demand.duration_s + DRAIN_S
         )
+        limit = max(leg.speed_limit_mps for leg in cfg.network.legs)
+        self.debt = debt_table(limit)
         self._use_seeds(seeds)
         self._compiled: dict[str, Callable] = {}
 
@@ -277,8 +316,10 @@ class SearchProblem:
         if name not in self._compiled:
 
             def one(theta: jax.Array, schedule: Schedule) -> dict[str, jax.Array]:
-                state = run_steered(self.env, schedule, self.params, steer_of(theta))
-                return episode_scores(state, self.objective)
+                state, exit_speed = run_steered(
+                    self.env, schedule, self.params, steer_of(theta)
+                )
+                return episode_scores(state, exit_speed, self.objective, self.debt)
 
             per_seed = jax.vmap(one, in_axes=(None, 0))
             self._compiled[name] = jax.jit(jax.vmap(per_seed, in_axes=(0, None)))
