@@ -112,3 +112,16 @@ def score_controllers(
     (One compiled program per problem and setting.)"""
     name = "state:" + ",".join(f"{v:.6g}" for v in np.asarray(setting))
     return problem.score(name, controller_steer(problem, setting), thetas)
+
+
+def ablations(theta: np.ndarray) -> dict[str, np.ndarray]:
+    """theta (P,) and its parts: which numbers' state dependence matters.
+    ``"full"`` theta; ``"bias_only"`` all weights 0 (the constant it holds);
+    ``"<name>_only"`` the weights of that number alone kept."""
+    table = np.asarray(theta, np.float32).reshape(len(TUNED), 1 + len(FEATURES))
+    out = {"full": table.reshape(-1)}
+    for keep in (None, *TUNED):
+        t = table.copy()
+        t[[j for j, n in enumerate(TUNED) if n != keep], 1:] = 0.0
+        out["bias_only" if keep is None else f"{keep}_only"] = t.reshape(-1)
+    return out

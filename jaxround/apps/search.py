@@ -40,7 +40,11 @@ from jaxround.analysis.setting_search import (
     from_unit,
     vtype_setting,
 )
-from jaxround.analysis.state_controller import score_controllers, start_of
+from jaxround.analysis.state_controller import (
+    ablations,
+    score_controllers,
+    start_of,
+)
 from jaxround.scenario.config import ScenarioConfig
 
 #: Added to the objective per vehicle that had not left at the step limit.
@@ -131,9 +135,10 @@ def paired_objective(policy: np.ndarray, baseline: np.ndarray) -> dict[str, Any]
 
 
 def _means(scores: dict[str, np.ndarray], row: int) -> dict[str, float]:
-    return {
-        k: float(np.mean(scores[k][row])) for k in ("objective", "time_s", "co2_g")
-    } | {k: int(scores[k][row].sum()) for k in ("missing", "overflow")}
+    means = ("objective", "time_s", "co2_g", "exit_time_s", "exit_co2_g")
+    return {k: float(np.mean(scores[k][row])) for k in means} | {
+        k: int(scores[k][row].sum()) for k in ("missing", "overflow")
+    }
 
 
 def run_search(
@@ -157,7 +162,8 @@ def run_search(
     check = search.with_seeds(eval_seeds)
     vtype = vtype_setting(cfg)
     constants = check.score_settings(np.stack([vtype, best]))
-    state = score_controllers(check, best, state_trace.best[None])
+    parts = ablations(state_trace.best)
+    state = score_controllers(check, best, np.stack(list(parts.values())))
     obj = {
         "vtype": constants["objective"][0],
         "constant": constants["objective"][1],
@@ -191,6 +197,16 @@ def run_search(
         },
         "constant_vs_vtype": paired_objective(obj["constant"], obj["vtype"]),
         "state_vs_constant": paired_objective(obj["state"], obj["constant"]),
+        # which numbers' state dependence the controller's gain comes from
+        "state_parts": {
+            name: {
+                **_means(state, i),
+                "vs_constant": paired_objective(
+                    state["objective"][i], obj["constant"]
+                ),
+            }
+            for i, name in enumerate(parts)
+        },
         "scored": {
             "settings": settings.tolist(),
             "time_s": scored["time_s"].mean(1).tolist(),
@@ -285,6 +301,13 @@ def summary(result: dict[str, Any]) -> str:
         f"{ev['vtype']['objective']:.3f}, constant {ev['constant']['objective']:.3f}, "
         f"state controller {ev['state']['objective']:.3f}",
         f"constant vs vType: {pct(cv)}; state controller vs constant: {pct(sv)}",
+        "state dependence of one number only, vs constant: " + ", ".join(
+            f"{k} {pct(v['vs_constant'])}" for k, v in result["state_parts"].items()
+            if k != "full"
+        ),
+        "owed at exit (time s / CO2 g): " + ", ".join(
+            f"{k} {e['exit_time_s']:.2f} / {e['exit_co2_g']:.2f}" for k, e in ev.items()
+        ),
         f"wall: constants {wall['constant_search']:.0f} s, controller "
         f"{wall['state_search']:.0f} s, total {wall['total']:.0f} s",
     ]) + warn  # fmt: skip

@@ -77,7 +77,7 @@ def cmd_search(args: argparse.Namespace) -> None:
     budget = SearchBudget(
         args.population, args.generations, args.state_generations or args.generations
     )
-    objective = Objective(args.time_weight, args.co2_weight)
+    objective = Objective(args.time_weight, args.co2_weight, args.charge_exit)
     search_seeds = list(range(SEARCH_SEED, SEARCH_SEED + args.search_seeds))
     eval_seeds = list(range(EVAL_SEED, EVAL_SEED + args.eval_seeds))
     result = run_search(
