@@ -169,6 +169,12 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
         help="cost of a gram of CO2 (default 0.5)",
     )
     p.add_argument(
+        "--charge-exit",
+        action="store_true",
+        help="add to each vehicle's time and CO2 what it still owes for leaving "
+        "below the speed limit (jaxround.analysis.exit_debt)",
+    )
+    p.add_argument(
         "--sumo",
         action="store_true",
         help="re-check the vType and the best constant in SUMO on the evaluation seeds",
