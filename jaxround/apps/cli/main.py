@@ -1,6 +1,6 @@
 """The `jaxround` command: one entry point, one subcommand per job.
 
-The subcommands live in `simulate`, `training`, `calibration` and
+The subcommands live in `simulate`, `training`, `calibration`, `search` and
 `jaxround.study.cli`; each module adds its own parsers.
 """
 
@@ -10,7 +10,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from jaxround.apps.cli import calibration, simulate, training
+from jaxround.apps.cli import calibration, search, simulate, training
 from jaxround.apps.cli.arguments import UsageError
 from jaxround.scenario.config import ConfigError
 
@@ -24,6 +24,7 @@ def build_parser() -> argparse.ArgumentParser:
     training.add_parsers(sub)
     simulate.add_parsers(sub)
     calibration.add_parsers(sub)
+    search.add_parsers(sub)
     from jaxround.study.cli import add_study_parser
 
     add_study_parser(sub)

@@ -1,0 +1,184 @@
+"""The `search` command: the best constant AV setting and a state-dependent
+controller against it (`jaxround.apps.search`)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from jaxround.apps.cli.arguments import (
+    UsageError,
+    config_option,
+    fresh_output_dir,
+    percent,
+    positive_int,
+    slots_option,
+    workers_option,
+)
+from jaxround.scenario.config import load_config
+
+#: First seed of the search's schedules, and of the evaluation's.
+SEARCH_SEED, EVAL_SEED = 200, 100
+RESULTS = ("search.json", "search.png")
+
+
+def positive_float(text: str) -> float:
+    try:
+        x = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not x > 0.0:
+        raise argparse.ArgumentTypeError(f"{text}: expected a number > 0")
+    return x
+
+
+def non_negative_float(text: str) -> float:
+    x = positive_float(text) if text.strip() not in ("0", "0.0") else 0.0
+    return x
+
+
+def shares(text: str) -> tuple[float, ...]:
+    """'0.4,0.1,0.4,0.1' -> shares that sum to 1."""
+    try:
+        values = tuple(float(p) for p in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: expected numbers a,b,..."
+        ) from None
+    if min(values) < 0 or abs(sum(values) - 1.0) > 1e-6:
+        raise argparse.ArgumentTypeError(f"{text}: shares must be >= 0 and sum to 1")
+    return values
+
+
+def cmd_search(args: argparse.Namespace) -> None:
+    from jaxround.analysis.search_plot import plot_front
+    from jaxround.analysis.setting_search import Objective, search_scenario
+    from jaxround.apps.search import (
+        SearchBudget,
+        front_table,
+        run_search,
+        summary,
+        sumo_recheck,
+    )
+
+    if args.origin_share is not None:
+        n_legs = load_config(args.config).n_legs
+        if len(args.origin_share) != n_legs:
+            raise UsageError(
+                f"--origin-share: {len(args.origin_share)} shares for {n_legs} legs"
+            )
+    cfg = search_scenario(
+        load_config(args.config), args.window_s, args.demand_scale, args.origin_share
+    )
+    if args.time_weight == 0 and args.co2_weight == 0:
+        raise UsageError("--time-weight and --co2-weight are both 0")
+    out = fresh_output_dir(args.out, False, RESULTS)
+    budget = SearchBudget(
+        args.population, args.generations, args.state_generations or args.generations
+    )
+    objective = Objective(args.time_weight, args.co2_weight, args.charge_exit)
+    search_seeds = list(range(SEARCH_SEED, SEARCH_SEED + args.search_seeds))
+    eval_seeds = list(range(EVAL_SEED, EVAL_SEED + args.eval_seeds))
+    result = run_search(
+        cfg, args.penetration, search_seeds, eval_seeds, budget, objective,
+        args.max_vehicles,
+    )  # fmt: skip
+    if args.sumo:
+        result["sumo"] = sumo_recheck(
+            cfg, args.penetration, eval_seeds, result["best_constant"], objective,
+            args.workers,
+        )  # fmt: skip
+    (out / "search.json").write_text(json.dumps(result, indent=1))
+    plot_front(result, out / "search.png")
+    print("front of the constants scored (search seeds):")
+    print(front_table(result))
+    print(summary(result))
+    if args.sumo:
+        s = result["sumo"]
+        print(
+            f"SUMO, best constant vs vType: time "
+            f"{100 * s['paired']['crossing_time_s']['rel_diff']:+.2f}%, CO2 "
+            f"{100 * s['paired']['co2_g']['rel_diff']:+.2f}%, objective "
+            f"{100 * s['objective']['rel_diff']:+.2f}%"
+        )
+    print(f"wrote {out / 'search.json'} and {out / 'search.png'}")
+
+
+def add_parsers(sub: argparse._SubParsersAction) -> None:
+    """Add the `search` subcommand to `sub`."""
+    p = sub.add_parser(
+        "search",
+        help="search the best constant AV setting (CMA-ES in JAX) and a "
+        "state-dependent controller against it",
+    )
+    config_option(p)
+    p.add_argument("--out", type=Path, required=True, help="folder to write into")
+    p.add_argument(
+        "--penetration", type=percent, default=1.0, help="AVs in percent (default 100)"
+    )
+    p.add_argument(
+        "--window-s",
+        type=positive_float,
+        default=600.0,
+        help="seconds of demand per episode, at the config's rate (default 600)",
+    )
+    p.add_argument(
+        "--demand-scale",
+        type=positive_float,
+        default=1.0,
+        help="factor on the vehicles per second (default 1)",
+    )
+    p.add_argument(
+        "--origin-share",
+        type=shares,
+        default=None,
+        help="share of vehicles entering at each leg, e.g. "
+        "0.55,0.05,0.35,0.05 (default: the config's)",
+    )
+    p.add_argument(
+        "--search-seeds",
+        type=positive_int,
+        default=4,
+        help=f"schedules the search scores on (seeds {SEARCH_SEED}..)",
+    )
+    p.add_argument(
+        "--eval-seeds",
+        type=positive_int,
+        default=10,
+        help=f"held-out schedules of the final check (seeds {EVAL_SEED}..)",
+    )
+    p.add_argument("--population", type=positive_int, default=12)
+    p.add_argument("--generations", type=positive_int, default=8)
+    p.add_argument(
+        "--state-generations",
+        type=positive_int,
+        default=None,
+        help="generations of the controller's search (default --generations)",
+    )
+    p.add_argument(
+        "--time-weight",
+        type=non_negative_float,
+        default=1.0,
+        help="cost of a vehicle-second (default 1)",
+    )
+    p.add_argument(
+        "--co2-weight",
+        type=non_negative_float,
+        default=0.5,
+        help="cost of a gram of CO2 (default 0.5)",
+    )
+    p.add_argument(
+        "--charge-exit",
+        action="store_true",
+        help="add to each vehicle's time and CO2 what it still owes for leaving "
+        "below the speed limit (jaxround.analysis.exit_debt)",
+    )
+    p.add_argument(
+        "--sumo",
+        action="store_true",
+        help="re-check the vType and the best constant in SUMO on the evaluation seeds",
+    )
+    slots_option(p)
+    workers_option(p)
+    p.set_defaults(func=cmd_search)  # fmt: skip

@@ -1,0 +1,313 @@
+"""The best constant AV setting, and what a state-dependent controller adds.
+
+`run_search` does one case (a scenario, a share of AVs, a demand):
+
+1. CMA-ES (`jaxround.analysis.cmaes`) over constant settings (the AV vType's
+   tau, impatience, accel, jmTimegapMinor and a ``cruise:V`` speed;
+   `jaxround.analysis.setting_search`), each generation's population scored
+   on the search seeds in one compiled JAX program;
+2. CMA-ES over the parameters of the state-dependent controller
+   (`jaxround.analysis.state_controller`), started at the best constant;
+3. a final check on held-out evaluation seeds: the AV vType uncontrolled,
+   the best constant and the controller, per-seed objective, and the paired
+   differences of constant vs vType and controller vs constant with 95%
+   t-intervals over the seeds (as `jaxround.analysis.compare`'s);
+4. optionally the vType and the best constant again in SUMO on the same
+   evaluation seeds (a declared vType and ``cruise:V``, as the headroom
+   study's variants), paired as `compare.paired_difference` pairs them.
+
+It also gives the front of crossing time against CO2 of every constant
+scored. Seeds: search seeds are 200 and above, evaluation seeds 100 and
+above; training draws its schedules in JAX.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from jaxround.analysis.cmaes import SearchTrace, minimise
+from jaxround.analysis.compare import mean_ci, paired_difference
+from jaxround.analysis.setting_search import (
+    SPACE,
+    Objective,
+    SearchProblem,
+    describe,
+    from_unit,
+    vtype_setting,
+)
+from jaxround.analysis.state_controller import (
+    ablations,
+    score_controllers,
+    start_of,
+)
+from jaxround.scenario.config import ScenarioConfig
+
+#: Added to the objective per vehicle that had not left at the step limit.
+MISSING_PENALTY = 1000.0
+
+
+@dataclasses.dataclass(frozen=True)
+class SearchBudget:
+    """How much a case searches.
+
+    Attributes:
+        population: CMA-ES population per generation.
+        generations: generations of the constant search.
+        state_generations: generations of the controller's search.
+        std: CMA-ES initial step (unit cube of the settings; raw theta).
+    """
+
+    population: int = 12
+    generations: int = 8
+    state_generations: int = 8
+    std: float = 0.25
+
+
+def fitness_of(scores: dict[str, np.ndarray]) -> np.ndarray:
+    """float (K,): mean objective over the seeds, missing vehicles penalised."""
+    return scores["objective"].mean(1) + MISSING_PENALTY * scores["missing"].sum(1)
+
+
+def pareto_front(time_s: np.ndarray, co2_g: np.ndarray) -> np.ndarray:
+    """Indices of the points no other point beats in both, by time, int (F,)."""
+    order = np.lexsort((co2_g, time_s))
+    front, best_co2 = [], np.inf
+    for i in order:
+        if co2_g[i] < best_co2:
+            front.append(int(i))
+            best_co2 = co2_g[i]
+    return np.asarray(front, int)
+
+
+def search_constants(
+    problem: SearchProblem, budget: SearchBudget, seed: int = 0
+) -> tuple[SearchTrace, dict[str, np.ndarray]]:
+    """CMA-ES over constant settings from the middle of the box; the trace (in
+    the unit cube) and the scores (K, S) of every point scored."""
+    kept: list[dict[str, np.ndarray]] = []
+
+    def fitness(unit: np.ndarray) -> np.ndarray:
+        scores = problem.score_settings(np.asarray(from_unit(unit)))
+        kept.append(scores)
+        return fitness_of(scores)
+
+    trace = minimise(
+        fitness, np.full(len(SPACE), 0.5, np.float32), budget.std,
+        budget.population, budget.generations, seed, desc="constants",
+    )  # fmt: skip
+    return trace, {k: np.concatenate([s[k] for s in kept]) for k in kept[0]}
+
+
+def search_controller(
+    problem: SearchProblem, setting: np.ndarray, budget: SearchBudget, seed: int = 0
+) -> SearchTrace:
+    """CMA-ES over the state-dependent controller, from the constant `setting`."""
+
+    def fitness(thetas: np.ndarray) -> np.ndarray:
+        return fitness_of(score_controllers(problem, setting, thetas))
+
+    return minimise(
+        fitness, start_of(setting), budget.std, budget.population,
+        budget.state_generations, seed, desc="state controller",
+    )  # fmt: skip
+
+
+def paired_objective(policy: np.ndarray, baseline: np.ndarray) -> dict[str, Any]:
+    """Policy minus baseline of per-seed objectives (S,), with the 95%
+    t-interval over seeds, absolute and relative to the baseline."""
+    diff = np.asarray(policy, np.float64) - np.asarray(baseline, np.float64)
+    base = float(np.mean(baseline))
+    ci = mean_ci(diff)
+    return {
+        "baseline": base,
+        "policy": float(np.mean(policy)),
+        "diff": float(diff.mean()),
+        "rel_diff": float(diff.mean()) / base,
+        "ci95_seeds": None if ci is None else [ci[1], ci[2]],
+        "rel_ci95_seeds": None if ci is None else [ci[1] / base, ci[2] / base],
+        "per_seed_diff": diff.tolist(),
+    }
+
+
+def _means(scores: dict[str, np.ndarray], row: int) -> dict[str, float]:
+    means = ("objective", "time_s", "co2_g", "exit_time_s", "exit_co2_g")
+    return {k: float(np.mean(scores[k][row])) for k in means} | {
+        k: int(scores[k][row].sum()) for k in ("missing", "overflow")
+    }
+
+
+def run_search(
+    cfg: ScenarioConfig,
+    penetration: float,
+    search_seeds: Sequence[int],
+    eval_seeds: Sequence[int],
+    budget: SearchBudget = SearchBudget(),
+    objective: Objective = Objective(),
+    max_vehicles: int | str | None = None,
+) -> dict[str, Any]:
+    """One case, steps 1-3 of the module docstring; a JSON-able dict."""
+    t0 = time.perf_counter()
+    search = SearchProblem(cfg, penetration, search_seeds, objective, max_vehicles)
+    trace, scored = search_constants(search, budget)
+    best = np.asarray(from_unit(trace.best))
+    t_constant = time.perf_counter() - t0
+    state_trace = search_controller(search, best, budget)
+    t_state = time.perf_counter() - t0 - t_constant
+
+    check = search.with_seeds(eval_seeds)
+    vtype = vtype_setting(cfg)
+    constants = check.score_settings(np.stack([vtype, best]))
+    parts = ablations(state_trace.best)
+    state = score_controllers(check, best, np.stack(list(parts.values())))
+    obj = {
+        "vtype": constants["objective"][0],
+        "constant": constants["objective"][1],
+        "state": state["objective"][0],
+    }
+    settings = np.asarray(from_unit(trace.points))
+    front = pareto_front(scored["time_s"].mean(1), scored["co2_g"].mean(1))
+    return {
+        "scenario": cfg.name,
+        "penetration": penetration,
+        "n_vehicles": cfg.demand.n_vehicles,
+        "window_s": cfg.demand.duration_s,
+        "origin_share": list(cfg.demand.origin_share),
+        "objective": dataclasses.asdict(objective),
+        "budget": dataclasses.asdict(budget),
+        "search_seeds": list(search_seeds),
+        "eval_seeds": list(eval_seeds),
+        "max_vehicles": search.env.max_vehicles,
+        "wall_s": {"constant_search": t_constant, "state_search": t_state,
+                   "total": time.perf_counter() - t0},
+        "best_constant": describe(best),
+        "best_constant_search_objective": trace.best_fitness,
+        "state_theta": state_trace.best.tolist(),
+        "state_search_objective": state_trace.best_fitness,
+        "generations": {"constant": trace.generations,
+                        "state": state_trace.generations},
+        "eval": {
+            "vtype": _means(constants, 0),
+            "constant": _means(constants, 1),
+            "state": _means(state, 0),
+        },
+        "constant_vs_vtype": paired_objective(obj["constant"], obj["vtype"]),
+        "state_vs_constant": paired_objective(obj["state"], obj["constant"]),
+        # which numbers' state dependence the controller's gain comes from
+        "state_parts": {
+            name: {
+                **_means(state, i),
+                "vs_constant": paired_objective(
+                    state["objective"][i], obj["constant"]
+                ),
+            }
+            for i, name in enumerate(parts)
+        },
+        "scored": {
+            "settings": settings.tolist(),
+            "time_s": scored["time_s"].mean(1).tolist(),
+            "co2_g": scored["co2_g"].mean(1).tolist(),
+            "objective": scored["objective"].mean(1).tolist(),
+        },
+        "front": front.tolist(),
+        "search_missing": int(scored["missing"].sum()),
+        "search_overflow": int(scored["overflow"].sum()),
+    }  # fmt: skip
+
+
+def sumo_recheck(
+    cfg: ScenarioConfig,
+    penetration: float,
+    eval_seeds: Sequence[int],
+    best: dict[str, float | None],
+    objective: Objective = Objective(),
+    workers: int | None = None,
+) -> dict[str, Any]:
+    """Step 4: the vType and the best constant in SUMO on the evaluation
+    seeds; the paired differences of time and CO2 (`paired_difference`) and
+    of the objective."""
+    from jaxround.apps.headroom import Variant, variant_config
+    from jaxround.scenario.schedule import make_schedule
+    from sumo_export.runner import run_many
+    from sumo_export.scripted import ScriptedControllerFactory
+
+    cruise = best.get("cruise_mps")
+    own = tuple((k, float(v)) for k, v in best.items() if k != "cruise_mps")
+    spec = None if cruise is None else f"cruise:{cruise:.4g}"
+    scheds = [make_schedule(cfg, seed=s, penetration=penetration) for s in eval_seeds]
+    runs = {}
+    for label, variant in (("vtype", Variant("vtype")), ("constant", Variant(
+            "constant", own, spec))):  # fmt: skip
+        factory = ScriptedControllerFactory(spec) if variant.controller else None
+        runs[label] = [
+            r.records
+            for r in run_many(
+                variant_config(cfg, variant), scheds, workers=workers,
+                controller=factory,
+            )
+        ]  # fmt: skip
+
+    def per_seed(records: list[Any]) -> np.ndarray:
+        return np.array([
+            objective(np.nanmean(r.crossing_time_s[r.arrived]),
+                      np.nanmean(r.co2_g[r.arrived]))
+            for r in records
+        ])  # fmt: skip
+
+    return {
+        "controller": spec,
+        "vtype_numbers": dict(own),
+        "paired": paired_difference(runs["constant"], runs["vtype"]),
+        "objective": paired_objective(per_seed(runs["constant"]),
+                                      per_seed(runs["vtype"])),
+        "arrived": {k: [int(r.arrived.sum()) for r in v] for k, v in runs.items()},
+    }  # fmt: skip
+
+
+def front_table(result: dict[str, Any]) -> str:
+    """The time-CO2 front of the constants scored, a Markdown table."""
+    s = result["scored"]
+    lines = ["| time s | CO2 g | objective | " + " | ".join(SPACE) + " |",
+             "|---" * (3 + len(SPACE)) + "|"]  # fmt: skip
+    for i in result["front"]:
+        numbers = describe(s["settings"][i])
+        cells = ["none" if v is None else f"{v:.3g}" for v in numbers.values()]
+        lines.append(
+            f"| {s['time_s'][i]:.2f} | {s['co2_g'][i]:.2f} | "
+            f"{s['objective'][i]:.2f} | " + " | ".join(cells) + " |"
+        )
+    return "\n".join(lines)
+
+
+def summary(result: dict[str, Any]) -> str:
+    """Best constant, controller, paired differences: a few lines."""
+    ev, cv = result["eval"], result["constant_vs_vtype"]
+    sv, wall = result["state_vs_constant"], result["wall_s"]
+
+    def pct(d: dict[str, Any]) -> str:
+        lo, hi = d["rel_ci95_seeds"] or (float("nan"), float("nan"))
+        return f"{100 * d['rel_diff']:+.2f}% [{100 * lo:+.2f}, {100 * hi:+.2f}]"
+
+    warn = ""
+    if result["search_overflow"] or any(e["overflow"] for e in ev.values()):
+        warn = "\nwarning: slots overflowed; pass a larger --max-vehicles"
+    return "\n".join([
+        f"best constant: {result['best_constant']}",
+        f"eval objective (seeds {result['eval_seeds'][0]}..): vType "
+        f"{ev['vtype']['objective']:.3f}, constant {ev['constant']['objective']:.3f}, "
+        f"state controller {ev['state']['objective']:.3f}",
+        f"constant vs vType: {pct(cv)}; state controller vs constant: {pct(sv)}",
+        "state dependence of one number only, vs constant: " + ", ".join(
+            f"{k} {pct(v['vs_constant'])}" for k, v in result["state_parts"].items()
+            if k != "full"
+        ),
+        "owed at exit (time s / CO2 g): " + ", ".join(
+            f"{k} {e['exit_time_s']:.2f} / {e['exit_co2_g']:.2f}" for k, e in ev.items()
+        ),
+        f"wall: constants {wall['constant_search']:.0f} s, controller "
+        f"{wall['state_search']:.0f} s, total {wall['total']:.0f} s",
+    ]) + warn  # fmt: skip

@@ -1,0 +1,32 @@
+"""`jaxround search` end to end on a tiny scenario (about 3 minutes on a loaded
+2-core machine, most of it compiling the two programs)."""
+
+from __future__ import annotations
+
+import json
+
+from jaxround.apps.cli.main import main
+from tests.conftest import quick_compilation
+from tests.unit.test_search_cli import tiny_config
+
+
+def test_search_writes_its_results_and_refuses_to_overwrite(tmp_path, capsys) -> None:
+    config, out = tiny_config(tmp_path), tmp_path / "out"
+    args = [
+        "search", "--config", config, "--out", str(out), "--window-s", "60",
+        "--search-seeds", "2", "--eval-seeds", "2", "--population", "2",
+        "--generations", "1", "--max-vehicles", "16", "--penetration", "50",
+    ]  # fmt: skip
+    with quick_compilation(tmp_path / "xla"):
+        assert main(args) == 0
+    result = json.loads((out / "search.json").read_text())
+    assert (out / "search.png").stat().st_size > 0
+    assert result["search_seeds"] == [200, 201] and result["eval_seeds"] == [100, 101]
+    assert len(result["scored"]["objective"]) == 1 + 2  # the start, one generation
+    ev = result["eval"]
+    assert all(ev[k]["missing"] == 0 and ev[k]["overflow"] == 0 for k in ev)
+    # the state-dependent search starts at the best constant: never worse there
+    assert result["state_search_objective"] <= result["best_constant_search_objective"]
+    assert "best constant" in capsys.readouterr().out
+    assert main(args) == 2  # the results exist: refused before any work
+    assert "already holds search.json" in capsys.readouterr().err

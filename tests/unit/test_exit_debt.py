@@ -1,0 +1,30 @@
+"""What slow leavers still owe (`jaxround.analysis.exit_debt`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from jaxround.analysis.exit_debt import debt_table, exit_debt
+from jaxround.analysis.state_controller import FEATURES, TUNED, ablations
+
+
+def test_leaving_at_the_limit_owes_nothing_and_slower_owes_more() -> None:
+    table = debt_table(13.89)
+    speeds, co2_g, time_s = table
+    assert co2_g[-1] < 0.1 and time_s[-1] < 0.01
+    assert np.all(np.diff(co2_g) <= 1e-6) and np.all(np.diff(time_s) <= 1e-6)
+    # from standstill: 150 m take about 3 s more than at the limit
+    assert 2.0 < time_s[0] < 4.0 and co2_g[0] > co2_g[100] > 0
+    co2, t = exit_debt(np.array([13.89, 20.0, 10.0]), table)
+    assert float(co2[0]) < 0.1 and float(co2[1]) < 0.1
+    np.testing.assert_allclose(float(t[2]), time_s[100], rtol=1e-5)
+
+
+def test_ablations_keep_one_number_state_dependent() -> None:
+    theta = np.arange(len(TUNED) * (1 + len(FEATURES)), dtype=np.float32) + 1
+    parts = ablations(theta)
+    assert list(parts) == ["full", "bias_only"] + [f"{n}_only" for n in TUNED]
+    bias = parts["bias_only"].reshape(len(TUNED), -1)
+    assert np.all(bias[:, 1:] == 0) and np.all(bias[:, 0] == theta.reshape(3, -1)[:, 0])
+    one = parts["cruise_mps_only"].reshape(len(TUNED), -1)
+    assert np.all(one[:2, 1:] == 0) and np.all(one[2] == theta.reshape(3, -1)[2])
