@@ -25,7 +25,7 @@ NOTEBOOKS = sorted((ROOT / "colab").glob("*.ipynb"))
 #: Seconds one cell may run.
 CELL_TIMEOUT_S = 600
 #: Set in the kernel's environment.
-KERNEL_ENV = {"JAXROUND_LOCAL": "1", "JAXROUND_QUICK": "1"}
+KERNEL_ENV = {"JAXROUND_LOCAL": "1", "JAXROUND_QUICK": "1", "JAX_DISABLE_MOST_OPTIMIZATIONS": "1"}
 
 
 def kernel_env() -> dict[str, str]:
