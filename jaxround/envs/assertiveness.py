@@ -12,8 +12,10 @@ like uncontrolled AVs, in JAX and in SUMO. SUMO's own models stay in charge
 of safety and right of way: a shorter headway is still IDM car following,
 an impatient AV still passes SUMO's gap acceptance (with its foes braking at
 impatience times their decel, ``MSLink::blockedByFoe``). The SUMO controller
-sets the same numbers with ``vehicle.setTau`` and ``vehicle.setImpatience``
-after each step, for the next (`sumo_export.controller`).
+sets the same numbers after each step, for the next: ``vehicle.setTau``, which
+gives the vehicle a type of its own, and ``vehicletype.setImpatience`` on that
+type (``vehicle.setImpatience`` has no effect in SUMO 1.28;
+`sumo_export.controller.set_tau_and_impatience`).
 
 Why these two: the headroom study (docs/ppo.md) found that, at 100% AVs, a
 shorter headway and impatience lower both the crossing time and the CO2 of
