@@ -148,8 +148,18 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
         default=10,
         help=f"held-out schedules of the final check (seeds {EVAL_SEED}..)",
     )
-    p.add_argument("--population", type=positive_int, default=12)
-    p.add_argument("--generations", type=positive_int, default=8)
+    p.add_argument(
+        "--population",
+        type=positive_int,
+        default=12,
+        help="settings CMA-ES scores per generation (default 12)",
+    )
+    p.add_argument(
+        "--generations",
+        type=positive_int,
+        default=8,
+        help="CMA-ES generations of the constant search (default 8)",
+    )
     p.add_argument(
         "--state-generations",
         type=positive_int,
