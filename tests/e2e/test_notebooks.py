@@ -25,7 +25,12 @@ NOTEBOOKS = sorted((ROOT / "colab").glob("*.ipynb"))
 #: Seconds one cell may run.
 CELL_TIMEOUT_S = 600
 #: Set in the kernel's environment.
-KERNEL_ENV = {"JAXROUND_LOCAL": "1", "JAXROUND_QUICK": "1", "JAX_DISABLE_MOST_OPTIMIZATIONS": "1"}
+#: (and compile with few optimisations: what they print does not depend on it)
+KERNEL_ENV = {
+    "JAXROUND_LOCAL": "1",
+    "JAXROUND_QUICK": "1",
+    "JAX_DISABLE_MOST_OPTIMIZATIONS": "1",
+}
 
 
 def kernel_env() -> dict[str, str]:
