@@ -6,15 +6,17 @@ Each AV, each step, chooses three numbers of its setting (`SPACE` of
 
     number = low + (high - low) * clip(bias + weights . features, 0, 1)
 
-of `FEATURES`, four numbers of the rich observation (`jaxround.envs.observe`,
-each about in [0, 1]): own speed, the gap to the leader, the distance to the
-yield line and how soon the ring traffic reaches the entry. ``accel`` and
+of `FEATURES`, each about in [0, 1]: six numbers of the rich observation
+(`jaxround.envs.observe`): own speed, the gap to the leader, the distance to
+the yield line, how soon the ring traffic reaches the entry, how far round
+the ring the exit is and the time waited; and whether the vehicle ahead is a
+human driver (1) or an AV or no one (0), which matters in mixed traffic. ``accel`` and
 ``jm_timegap_minor`` stay those of a constant setting (a vType's, which a
 SUMO controller cannot retune each step). With all weights 0 the controller
 is that constant setting: the search starts there (`start_of`), so it is
 never worse on the search's schedules.
 
-theta: float (P,) = (`TUNED` x (1 + `FEATURES`)), row-major, P = 15.
+theta: float (P,) = (`TUNED` x (1 + `FEATURES`)), row-major, P = 24.
 """
 
 from __future__ import annotations
@@ -36,16 +38,23 @@ from jaxround.analysis.setting_search import (
 )
 from jaxround.core.params import EnvParams
 from jaxround.core.state import EnvState
-from jaxround.envs.observe import rich_observation
+from jaxround.envs.observe import rich_observation_and_leader
 from jaxround.envs.scripted import LEADER_GAP, OWN_SPEED, RING_ARRIVAL, TO_YIELD_LINE
 
+#: Rich-observation columns of the exit's legs round the ring over the legs,
+#: and of the time waited over the time to impatience (`observe`'s order).
+LEGS_TO_EXIT, WAITING = 15, 16
 #: Rich-observation columns the controller reads.
-FEATURES = {
+OBSERVED = {
     "own_speed": OWN_SPEED,
     "leader_gap": LEADER_GAP,
     "to_yield_line": TO_YIELD_LINE,
     "ring_arrival": RING_ARRIVAL,
+    "legs_to_exit": LEGS_TO_EXIT,
+    "waiting": WAITING,
 }
+#: The controller's inputs: `OBSERVED` and whether the leader is human.
+FEATURES = (*OBSERVED, "leader_is_human")
 #: The setting numbers chosen per AV and step.
 TUNED = ("tau", "impatience", "cruise_mps")
 N_PARAMS = len(TUNED) * (1 + len(FEATURES))
@@ -60,15 +69,27 @@ def start_of(setting: np.ndarray) -> np.ndarray:
     return theta.reshape(-1)
 
 
-def tuned_numbers(theta: jax.Array, obs: jax.Array) -> dict[str, jax.Array]:
+def features_of(obs: jax.Array, leader: jax.Array, is_av: jax.Array) -> jax.Array:
+    """`FEATURES` of each slot, float (M, F).
+
+    Args:
+        obs: float (M, 17) rich observation rows.
+        leader: int (M,) slot ahead, -1 for none.
+        is_av: bool (M,) vehicle class of each slot.
+    """
+    behind_human = (leader >= 0) & ~is_av[jnp.maximum(leader, 0)]
+    observed = obs[:, list(OBSERVED.values())]
+    return jnp.concatenate([observed, behind_human[:, None].astype(obs.dtype)], -1)
+
+
+def tuned_numbers(theta: jax.Array, feats: jax.Array) -> dict[str, jax.Array]:
     """Each slot's `TUNED` numbers, name -> float (M,).
 
     Args:
         theta: float (P,).
-        obs: float (M, 17) rich observation rows.
+        feats: float (M, F) `features_of` each slot.
     """
     table = theta.reshape(len(TUNED), 1 + len(FEATURES))
-    feats = obs[:, list(FEATURES.values())]  # (M, F)
     unit = jnp.clip(table[:, 0] + feats @ table[:, 1:].T, 0.0, 1.0)  # (M, 3)
     out = {}
     for j, name in enumerate(TUNED):
@@ -95,8 +116,10 @@ def controller_steer(
 
     def steer_of(theta: jax.Array) -> Steer:
         def steer(state: EnvState) -> tuple[EnvParams, jax.Array]:
-            obs = rich_observation(env.net, state, base, env.route_destination)
-            n = tuned_numbers(theta, obs)
+            obs, leader = rich_observation_and_leader(
+                env.net, state, base, env.route_destination
+            )
+            n = tuned_numbers(theta, features_of(obs, leader, state.is_av))
             params = slot_params(base, n["tau"], n["impatience"])
             return params, cruise_action(state.speed, n["cruise_mps"], env.dt)
 

@@ -103,6 +103,17 @@ def rich_observation(
     Args:
         route_destination: int (R,) exit leg of each route.
     """
+    return rich_observation_and_leader(net, state, params, route_destination)[0]
+
+
+def rich_observation_and_leader(
+    net: NetArrays,
+    state: EnvState,
+    params: EnvParams,
+    route_destination: jax.Array,
+) -> tuple[jax.Array, jax.Array]:
+    """`rich_observation`, float (M, 17), and the slot ahead of each slot,
+    int (M,) (-1 for none), for controllers that also ask who leads."""
     base, leader, gap = paper_observation(net, state, params)
     g = net.through_length.shape[0]
     lead = jnp.maximum(leader, 0)
@@ -129,4 +140,4 @@ def rich_observation(
         axis=-1,
     )
     obs = jnp.concatenate([base, extra], axis=-1)
-    return jnp.where(state.active[:, None], obs, 0.0)
+    return jnp.where(state.active[:, None], obs, 0.0), leader

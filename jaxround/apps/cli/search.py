@@ -180,9 +180,12 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--charge-exit",
-        action="store_true",
+        action=argparse.BooleanOptionalAction,
+        default=True,
         help="add to each vehicle's time and CO2 what it still owes for leaving "
-        "below the speed limit (jaxround.analysis.exit_debt)",
+        "below the speed limit (jaxround.analysis.exit_debt; default on: "
+        "without it, leaving slowly defers CO2 past the network's edge and "
+        "scores as a saving)",
     )
     p.add_argument(
         "--sumo",
