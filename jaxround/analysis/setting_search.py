@@ -270,6 +270,12 @@ class SearchProblem:
             100 and above; training draws its own in JAX).
         objective: the weights of time and CO2.
         max_vehicles: slots M (None: sized by the scenario's traffic).
+        rows: settings scored per call of a compiled program (None: a
+            batch's own K). With a fixed number, batches of any K, and
+            schedules of any count (in blocks of ``len(seeds)``, also after
+            `with_seeds`), reuse one program per controller kind instead of
+            compiling one per shape; padding rows and schedules are scored
+            and dropped.
     """
 
     def __init__(
@@ -279,10 +285,15 @@ class SearchProblem:
         seeds: Sequence[int],
         objective: Objective = Objective(),
         max_vehicles: int | str | None = None,
+        rows: int | None = None,
     ) -> None:
+        if rows is not None and rows < 1:
+            raise ValueError(f"rows: {rows!r}, expected at least 1")
         self.cfg = cfg
         self.penetration = float(penetration)
         self.objective = objective
+        self.rows = rows
+        self.seed_block = len(seeds) if rows is not None else None
         self.env, self.params = make(
             cfg, max_vehicles=max_vehicles, episode_s=cfg.demand.duration_s + DRAIN_S
         )
@@ -323,8 +334,28 @@ class SearchProblem:
 
             per_seed = jax.vmap(one, in_axes=(None, 0))
             self._compiled[name] = jax.jit(jax.vmap(per_seed, in_axes=(0, None)))
-        out = self._compiled[name](jnp.asarray(batch, jnp.float32), self.schedules)
-        return {k: np.asarray(v) for k, v in jax.device_get(out).items()}
+        program = self._compiled[name]
+        batch = np.asarray(batch, np.float32)
+        k, s = batch.shape[0], len(self.seeds)
+        if self.rows is None:
+            out = program(jnp.asarray(batch), self.schedules)
+            return {key: np.asarray(v) for key, v in jax.device_get(out).items()}
+        rows, cols = self.rows, self.seed_block
+        batch = batch[np.minimum(np.arange(-(-k // rows) * rows), k - 1)]
+        seeds = np.minimum(np.arange(-(-s // cols) * cols), s - 1)
+        blocks = []  # (row block, seed block) dicts of (rows, cols)
+        for i in range(0, len(batch), rows):
+            along = []
+            for j in range(0, len(seeds), cols):
+                take = jnp.asarray(seeds[j : j + cols])
+                schedules = jax.tree.map(lambda x, t=take: x[t], self.schedules)
+                along.append(jax.device_get(program(batch[i : i + rows], schedules)))
+            blocks.append({key: np.concatenate([a[key] for a in along], 1)
+                           for key in along[0]})  # fmt: skip
+        return {
+            key: np.concatenate([b[key] for b in blocks], 0)[:k, :s]
+            for key in blocks[0]
+        }
 
     def constant_steer(self, setting: jax.Array) -> Steer:
         """The controller of a constant setting (D,)."""

@@ -152,7 +152,12 @@ def run_search(
 ) -> dict[str, Any]:
     """One case, steps 1-3 of the module docstring; a JSON-able dict."""
     t0 = time.perf_counter()
-    search = SearchProblem(cfg, penetration, search_seeds, objective, max_vehicles)
+    # one compiled program per controller kind serves every batch and seed
+    # count below (the final check's in blocks of the search's shape)
+    search = SearchProblem(
+        cfg, penetration, search_seeds, objective, max_vehicles,
+        rows=budget.population,
+    )  # fmt: skip
     trace, scored = search_constants(search, budget)
     best = np.asarray(from_unit(trace.best))
     t_constant = time.perf_counter() - t0

@@ -74,6 +74,13 @@ def test_vtype_setting_scores_as_an_uncontrolled_run(tmp_path) -> None:
         states = jax.jit(
             jax.vmap(lambda s: run_until_left(env, params, s, jax.random.PRNGKey(0)))
         )(problem.schedules)
+        # fixed blocks of 2 settings x 2 schedules: 3 settings and, after
+        # with_seeds, 3 schedules are padded to 2 x 2 blocks of one program
+        blocked = SearchProblem(cfg, 0.5, [200, 201], max_vehicles=16, rows=2)
+        other = vtype_setting(cfg).copy()
+        other[0] = 0.5  # tau
+        three = np.stack([vtype_setting(cfg), other, vtype_setting(cfg)])
+        in_blocks = blocked.with_seeds([201, 200, 201]).score_settings(three)
     for j in range(2):
         rec = vehicle_records(env, jax.tree.map(lambda x, j=j: x[j], states))
         assert rec.arrived.all() and scores["missing"][0, j] == 0
@@ -84,3 +91,11 @@ def test_vtype_setting_scores_as_an_uncontrolled_run(tmp_path) -> None:
         np.testing.assert_allclose(scores["co2_g"][0, j], rec.co2_g.mean(), rtol=1e-5)
     expected = scores["time_s"] + 0.5 * scores["co2_g"]
     np.testing.assert_allclose(scores["objective"], expected, rtol=1e-6)
+    for key, values in in_blocks.items():
+        assert values.shape == (3, 3), key
+        for row in (0, 2):  # the vType's rows: seeds 201, 200, 201
+            np.testing.assert_allclose(
+                values[row], scores[key][0, [1, 0, 1]], rtol=1e-6, err_msg=key
+            )
+    assert in_blocks["time_s"][1, 0] != in_blocks["time_s"][0, 0]  # tau 0.5 differs
+    assert blocked._compiled["constant"]._cache_size() == 1  # one shape compiled
