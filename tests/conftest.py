@@ -85,6 +85,9 @@ def quick_compilation(cache_dir: Path) -> Iterator[None]:
         cc.reset_cache()
 
 
+#: JAX reads it at import: XLA compiles with few optimisations when "1".
+QUICK_ENV = "JAX_DISABLE_MOST_OPTIMIZATIONS"
+
 #: Set by the controlling pytest process: a cache folder shared by the whole
 #: test session (every xdist worker and every subprocess), removed at its end.
 SESSION_CACHE_ENV = "JAXROUND_TEST_SESSION_CACHE"
@@ -108,6 +111,12 @@ def pytest_configure(config: pytest.Config) -> None:
         config.stash[_OWNS_CACHE] = True
     cache = os.environ[SESSION_CACHE_ENV]
     os.environ["XDG_CACHE_HOME"] = cache
+    # Few optimisations everywhere (subprocesses inherit it): the tests' time
+    # goes into compiling many programs that each run briefly, and no test
+    # asserts a timing. JAX_DISABLE_MOST_OPTIMIZATIONS=0 before pytest
+    # compiles them fully.
+    os.environ.setdefault(QUICK_ENV, "1")
+    jax.config.update("jax_disable_most_optimizations", os.environ[QUICK_ENV] == "1")
     jax.config.update("jax_compilation_cache_dir", session_xla_cache())
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
