@@ -1,11 +1,19 @@
-"""What slow leavers still owe (`jaxround.analysis.exit_debt`)."""
+"""What slow leavers still owe (`jaxround.analysis.exit_debt`), and the
+state-dependent controller's inputs and parts (`analysis.state_controller`)."""
 
 from __future__ import annotations
 
+import jax.numpy as jnp
 import numpy as np
 
 from jaxround.analysis.exit_debt import debt_table, exit_debt
-from jaxround.analysis.state_controller import FEATURES, TUNED, ablations
+from jaxround.analysis.state_controller import (
+    FEATURES,
+    OBSERVED,
+    TUNED,
+    ablations,
+    features_of,
+)
 
 
 def test_leaving_at_the_limit_owes_nothing_and_slower_owes_more() -> None:
@@ -28,3 +36,16 @@ def test_ablations_keep_one_number_state_dependent() -> None:
     assert np.all(bias[:, 1:] == 0) and np.all(bias[:, 0] == theta.reshape(3, -1)[:, 0])
     one = parts["cruise_mps_only"].reshape(len(TUNED), -1)
     assert np.all(one[:2, 1:] == 0) and np.all(one[2] == theta.reshape(3, -1)[2])
+
+
+def test_features_read_the_observation_and_mark_a_human_leader() -> None:
+    """The controller reads columns 10, 11 and 13-16 of the rich observation,
+    and its last feature is 1 only behind a human driver."""
+    obs = jnp.tile(jnp.arange(17, dtype=jnp.float32), (4, 1))
+    leader = jnp.array([-1, 0, 2, 1])
+    is_av = jnp.array([False, True, True, True])  # slot 0 is the one human
+    feats = np.asarray(features_of(obs, leader, is_av))
+    assert feats.shape == (4, len(FEATURES))
+    assert feats[0, : len(OBSERVED)].tolist() == [10, 11, 13, 14, 15, 16]
+    # no leader, a human leader, an AV leader, an AV leader
+    assert feats[:, -1].tolist() == [0.0, 1.0, 0.0, 0.0]
