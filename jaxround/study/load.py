@@ -164,7 +164,10 @@ def _figures(
     return {
         "participants": len(outcomes),
         "wall_s": round(wall_s, 1),
-        "rides": [{"status": o["status"], "frames": o["frames"]} for o in outcomes],
+        "rides": [
+            {"status": o["status"], "frames": o["frames"], "error": o.get("error")}
+            for o in outcomes
+        ],
         "rides_dropped": sum(o["status"] not in ok for o in outcomes),
         "steps": len(delays),
         "frames_lost": sum(

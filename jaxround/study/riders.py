@@ -92,7 +92,9 @@ async def scripted_ride(base: str, kind: str = "first") -> dict[str, Any]:
     probes: dict[int, dict[str, Any]] = {}  # input number -> its times
     latency: list[dict[str, float]] = []
     try:
-        async with websockets.connect(url, open_timeout=30) as ws:
+        # no keepalive pings of our own, as a browser sends none: a rider
+        # starved of CPU for 20 s would otherwise close its own ride
+        async with websockets.connect(url, open_timeout=30, ping_interval=None) as ws:
             async for text in ws:
                 now = time.perf_counter()
                 message = json.loads(text)
