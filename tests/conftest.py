@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
 import copy
 import os
 import shutil
@@ -62,27 +61,6 @@ def tree_equal(a: Any, b: Any) -> bool:
         np.array_equal(np.asarray(x), np.asarray(y), equal_nan=True)
         for x, y in zip(la, lb, strict=True)
     )
-
-
-@contextlib.contextmanager
-def quick_compilation(cache_dir: Path) -> Iterator[None]:
-    """Compile with few optimisations, into a persistent cache; restore after.
-
-    For test modules whose time goes into compiling large programs (PPO, APG,
-    gradients) rather than running them.
-    """
-    from jax.experimental.compilation_cache import compilation_cache as cc
-
-    old_dir = jax.config.jax_compilation_cache_dir
-    old_opt = jax.config.values["jax_disable_most_optimizations"]
-    jax.config.update("jax_compilation_cache_dir", str(cache_dir))
-    jax.config.update("jax_disable_most_optimizations", True)
-    try:
-        yield
-    finally:
-        jax.config.update("jax_compilation_cache_dir", old_dir)
-        jax.config.update("jax_disable_most_optimizations", old_opt)
-        cc.reset_cache()
 
 
 #: JAX reads it at import: XLA compiles with few optimisations when "1".

@@ -11,7 +11,6 @@ keeps it per config).
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +33,6 @@ from agents.run.algorithms import compiled_trainer, csv_columns, load_run_config
 from agents.run.metrics_csv import read_csv
 from jaxround.apps.cli.main import main
 from jaxround.scenario.config import AgentConfig, ConfigError
-from tests.conftest import quick_compilation
 
 #: The tiny run: milan's network, 9 vehicles in 20 s, 10 s episodes (20 steps),
 #: 8 slots, 4 roundabouts, windows of 5 steps, 4 updates.
@@ -53,12 +51,6 @@ TINY = dict(
 
 def tiny_config(**changes: Any) -> APGConfig:
     return APGConfig(**TINY).replace(**changes)
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _quick_compilation(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
-    with quick_compilation(tmp_path_factory.getbasetemp() / "xla_cache"):
-        yield
 
 
 # --------------------------------------------------------------------------- config

@@ -24,12 +24,11 @@ ROOT = Path(__file__).resolve().parents[2]
 NOTEBOOKS = sorted((ROOT / "colab").glob("*.ipynb"))
 #: Seconds one cell may run.
 CELL_TIMEOUT_S = 600
-#: Set in the kernel's environment.
-#: (and compile with few optimisations: what they print does not depend on it)
+#: Set in the kernel's environment (which inherits the session's few
+#: optimisations, `conftest.pytest_configure`).
 KERNEL_ENV = {
     "JAXROUND_LOCAL": "1",
     "JAXROUND_QUICK": "1",
-    "JAX_DISABLE_MOST_OPTIMIZATIONS": "1",
 }
 
 

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import shutil
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -23,14 +22,8 @@ from agents.run.algorithms import CSV_COLUMNS
 from agents.run.metrics_csv import read_csv
 from jaxround.apps.cli.main import main
 from jaxround.scenario.config import DRAIN_S, load_config
-from tests.conftest import builtin_dict, quick_compilation
+from tests.conftest import builtin_dict
 from tests.unit.test_ppo import tiny_config
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _quick_compilation(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
-    with quick_compilation(tmp_path_factory.getbasetemp() / "xla_cache"):
-        yield
 
 
 @pytest.fixture(scope="module")

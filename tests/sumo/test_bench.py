@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterator
 from typing import Any
 
 import jax
@@ -22,7 +21,7 @@ from jaxround.apps.bench import (
 )
 from jaxround.envs.roundabout import make
 from jaxround.scenario.schedule import make_schedule
-from tests.conftest import quick_compilation, small_config
+from tests.conftest import small_config
 
 BATCHES = (4,)
 SLOT_SIZES = (8, 16)
@@ -40,13 +39,6 @@ TINY_PPO = dict(
     minibatches=2,
 )
 POLICY_BATCH = 2
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _quick_compilation(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
-    # the timings are not tested, only the result's shape: compile fast
-    with quick_compilation(tmp_path_factory.getbasetemp() / "xla_cache"):
-        yield
 
 
 @pytest.fixture(scope="module")

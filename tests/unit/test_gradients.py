@@ -1,13 +1,11 @@
 """Gradients through the dynamics: finite, right (finite differences), and
 the relaxed dynamics converge to the exact ones as the temperature goes to 0.
 
-The programs here are compiled with few optimisations (`quick_compilation`):
-compiling the backward pass takes most of this module's time.
+Compiling the backward pass takes most of this module's time (with the few
+optimisations every test compiles with, `conftest.pytest_configure`).
 """
 
 from __future__ import annotations
-
-from collections.abc import Iterator
 
 import jax
 import jax.numpy as jnp
@@ -20,7 +18,6 @@ from jaxround.core.state import EnvState
 from jaxround.envs.rollout import make_episode_runner, uncontrolled_policy
 from jaxround.envs.roundabout import RoundaboutEnv, make
 from jaxround.scenario.schedule import make_schedule
-from tests.conftest import quick_compilation
 
 #: Steps of the window the gradients are taken over (10 s).
 WINDOW = 20
@@ -28,12 +25,6 @@ WINDOW = 20
 GATE_STEPS = 40
 #: The gap parameters act only through the entry's gap acceptance.
 GAP_PARAMS = ("jm_timegap_minor", "impatience")
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _quick_compilation(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
-    with quick_compilation(tmp_path_factory.getbasetemp() / "xla_cache"):
-        yield
 
 
 @pytest.fixture(scope="module")

@@ -3,10 +3,9 @@ the config, and the training program (chunks against the whole run, two
 seeds on two devices).
 
 Compiling a training update takes tens of seconds on a CPU (it holds the
-environment's step), so only two tests build one, on the tiny config below,
-and these modules compile with `jax_disable_most_optimizations` (the tiny
-programs run in milliseconds either way) into a persistent cache shared with
-`test_train_cli.py`.
+environment's step), so only two tests build one, on the tiny config below
+(with the few optimisations and the session's persistent cache that every
+test compiles with, `conftest.pytest_configure`).
 """
 
 from __future__ import annotations
@@ -15,7 +14,6 @@ import json
 import os
 import subprocess
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -36,7 +34,7 @@ from agents.common.export import (
 from agents.ppo import Trainer
 from agents.ppo.losses import Batch, compute_gae, ppo_loss
 from jaxround.scenario.config import ConfigError
-from tests.conftest import quick_compilation, tree_equal
+from tests.conftest import tree_equal
 
 ROOT = Path(__file__).resolve().parents[2]
 #: The tiny training run of the tests: milan's network, 9 vehicles in 20 s,
@@ -61,12 +59,6 @@ TINY = dict(
 
 def tiny_config(**changes: Any) -> PPOConfig:
     return PPOConfig(**TINY).replace(**changes)
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _quick_compilation(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
-    with quick_compilation(tmp_path_factory.getbasetemp() / "xla_cache"):
-        yield
 
 
 # --------------------------------------------------------------------------- GAE
@@ -470,7 +462,6 @@ def test_two_seeds_sharded_over_two_devices() -> None:
     env = {
         **os.environ,
         "XLA_FLAGS": "--xla_force_host_platform_device_count=2",
-        "JAX_DISABLE_MOST_OPTIMIZATIONS": "1",
     }
     done = subprocess.run(
         [sys.executable, "-c", TWO_DEVICES],

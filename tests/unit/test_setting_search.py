@@ -19,7 +19,7 @@ from jaxround.analysis.setting_search import (
 )
 from jaxround.apps.search import pareto_front
 from jaxround.envs.rollout import run_until_left, vehicle_records
-from tests.conftest import quick_compilation, small_config
+from tests.conftest import small_config
 
 
 def test_cmaes_finds_the_minimum_of_a_quadratic() -> None:
@@ -67,20 +67,19 @@ def test_vtype_setting_scores_as_an_uncontrolled_run(tmp_path) -> None:
     """The batched evaluation of the vType's own numbers, without a cruise
     command, is the uncontrolled episode: same crossing times and CO2."""
     cfg = search_scenario(small_config(n_vehicles=30, duration_s=120.0), 120.0)
-    with quick_compilation(tmp_path / "xla"):
-        problem = SearchProblem(cfg, 0.5, [200, 201], max_vehicles=16)
-        scores = problem.score_settings(vtype_setting(cfg)[None])
-        env, params = problem.env, problem.params
-        states = jax.jit(
-            jax.vmap(lambda s: run_until_left(env, params, s, jax.random.PRNGKey(0)))
-        )(problem.schedules)
-        # fixed blocks of 2 settings x 2 schedules: 3 settings and, after
-        # with_seeds, 3 schedules are padded to 2 x 2 blocks of one program
-        blocked = SearchProblem(cfg, 0.5, [200, 201], max_vehicles=16, rows=2)
-        other = vtype_setting(cfg).copy()
-        other[0] = 0.5  # tau
-        three = np.stack([vtype_setting(cfg), other, vtype_setting(cfg)])
-        in_blocks = blocked.with_seeds([201, 200, 201]).score_settings(three)
+    problem = SearchProblem(cfg, 0.5, [200, 201], max_vehicles=16)
+    scores = problem.score_settings(vtype_setting(cfg)[None])
+    env, params = problem.env, problem.params
+    states = jax.jit(
+        jax.vmap(lambda s: run_until_left(env, params, s, jax.random.PRNGKey(0)))
+    )(problem.schedules)
+    # fixed blocks of 2 settings x 2 schedules: 3 settings and, after
+    # with_seeds, 3 schedules are padded to 2 x 2 blocks of one program
+    blocked = SearchProblem(cfg, 0.5, [200, 201], max_vehicles=16, rows=2)
+    other = vtype_setting(cfg).copy()
+    other[0] = 0.5  # tau
+    three = np.stack([vtype_setting(cfg), other, vtype_setting(cfg)])
+    in_blocks = blocked.with_seeds([201, 200, 201]).score_settings(three)
     for j in range(2):
         rec = vehicle_records(env, jax.tree.map(lambda x, j=j: x[j], states))
         assert rec.arrived.all() and scores["missing"][0, j] == 0
