@@ -461,7 +461,8 @@ def test_two_seeds_sharded_over_two_devices() -> None:
     """Two seeds in one vmap with the roundabouts split over two (host) devices."""
     env = {
         **os.environ,
-        "XLA_FLAGS": "--xla_force_host_platform_device_count=2",
+        "XLA_FLAGS": os.environ.get("XLA_FLAGS", "")
+        + " --xla_force_host_platform_device_count=2",
     }
     done = subprocess.run(
         [sys.executable, "-c", TWO_DEVICES],
