@@ -94,6 +94,10 @@ class RoundaboutEnv:
                 if network.route_index[o, d] >= 0:
                     dest[network.route_index[o, d]] = d
         self.route_destination = jnp.asarray(dest)
+        # jitted once per environment, as gymnax jits its `reset`: a call
+        # outside any trace compiles one program instead of each of its
+        # several hundred operations (inside a trace it is inlined)
+        self._reset_to_schedule = jax.jit(self._start_episode)
 
     # ------------------------------------------------------------------ params
 
@@ -135,7 +139,19 @@ class RoundaboutEnv:
     def reset_to_schedule(
         self, schedule: Schedule, params: EnvParams
     ) -> tuple[jax.Array, EnvState]:
-        """Start an episode that inserts the vehicles of `schedule`."""
+        """Start an episode that inserts the vehicles of `schedule`.
+
+        Jitted: outside a trace the first call per shape compiles it.
+
+        Returns:
+            (observation (M, obs_size), state).
+        """
+        return self._reset_to_schedule(schedule, params)
+
+    def _start_episode(
+        self, schedule: Schedule, params: EnvParams
+    ) -> tuple[jax.Array, EnvState]:
+        """`reset_to_schedule`'s body: empty slots, then the first insertions."""
         m, n, g = self.max_vehicles, self.n_schedule, self.n_legs
         zf = jnp.zeros(m, jnp.float32)
         state = EnvState(
