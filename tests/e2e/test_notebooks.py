@@ -3,8 +3,8 @@
 Each notebook is executed in a fresh kernel of the interpreter that runs the
 tests, with JAXROUND_LOCAL=1 (use the installed checkout, install nothing) and
 JAXROUND_QUICK=1 (the small budget), in a temporary folder; the notebook files
-in the repository are not modified. About two minutes per notebook on a 2-core
-CPU, most of it compiling the environment's step.
+in the repository are not modified. About a minute per notebook in a full
+run on a 2-core CPU, most of it compiling the environment's step.
 """
 
 from __future__ import annotations
