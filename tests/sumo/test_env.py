@@ -28,7 +28,7 @@ from jaxround.envs.roundabout import RoundaboutEnv, make
 from jaxround.scenario.config import ScenarioConfig, config_from_dict, load_config
 from jaxround.scenario.schedule import Schedule as NumpySchedule
 from jaxround.scenario.schedule import make_schedule, n_av_at
-from tests.conftest import builtin_dict, small_config, tree_equal
+from tests.conftest import builtin_dict, fully_optimised, small_config, tree_equal
 
 #: The small scenario: milan's network and drivers, 36 vehicles in 90 s (0.4
 #: vehicles/s, milan's 1540/h), 4 slots, 10 s episodes for the auto-reset.
@@ -359,7 +359,8 @@ def double_demand() -> tuple[Any, EnvState, dict[str, Any]]:
     env, params = make(cfg, max_vehicles=DOUBLE_SLOTS)
     sched = env.schedule_from_numpy(make_schedule(cfg, seed=2))
     run = jax.jit(checked_runner(env, env.episode_steps))
-    state, trace = run(params, sched, jax.random.PRNGKey(0))
+    with fully_optimised():  # 7,800 steps, each checked
+        state, trace = run(params, sched, jax.random.PRNGKey(0))
     return env, jax.device_get(state), jax.device_get(trace)
 
 
@@ -367,7 +368,8 @@ def double_demand() -> tuple[Any, EnvState, dict[str, Any]]:
 
 
 def test_make_milan_defaults_and_shapes() -> None:
-    env, params = make("milan")
+    with fully_optimised():  # sizing the slots runs 8 schedules for 900 s
+        env, params = make("milan")
     cfg = load_config("milan")
     assert isinstance(env, RoundaboutEnv) and isinstance(params, EnvParams)
     m = 32  # the slots Milan's traffic needs (`jaxround.envs.slots`)
