@@ -131,7 +131,7 @@ def fully_optimised() -> Iterator[None]:
 
 def quick_xla_flags(flags: str) -> str:
     """``XLA_FLAGS`` with `QUICK_XLA_FLAG` added, unless it sets it already."""
-    if "xla_cpu_use_fusion_emitters" in flags:
+    if QUICK_XLA_FLAG.split("=")[0] in flags:
         return flags
     return f"{flags} {QUICK_XLA_FLAG}".strip()
 

@@ -98,6 +98,11 @@ class RoundaboutEnv:
         # outside any trace compiles one program instead of each of its
         # several hundred operations (inside a trace it is inlined)
         self._reset_to_schedule = jax.jit(self._start_episode)
+        self._reset = jax.jit(
+            lambda key, params: self._start_episode(
+                self.draw_schedule(key, params), params
+            )
+        )
 
     # ------------------------------------------------------------------ params
 
@@ -133,8 +138,11 @@ class RoundaboutEnv:
     # ------------------------------------------------------------------ API
 
     def reset(self, key: jax.Array, params: EnvParams) -> tuple[jax.Array, EnvState]:
-        """Start an episode with a freshly drawn schedule."""
-        return self.reset_to_schedule(self.draw_schedule(key, params), params)
+        """Start an episode with a freshly drawn schedule.
+
+        Jitted, drawing included, as `reset_to_schedule`.
+        """
+        return self._reset(key, params)
 
     def reset_to_schedule(
         self, schedule: Schedule, params: EnvParams
