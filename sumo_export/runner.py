@@ -25,6 +25,7 @@ from jaxround.scenario.config import DRAIN_S, ScenarioConfig
 from jaxround.scenario.edges import in_edge
 from jaxround.scenario.records import VehicleRecords
 from jaxround.scenario.schedule import Schedule
+from sumo_export.conflicts import read_conflicts
 from sumo_export.executors import sumo_pool
 from sumo_export.scenario import vehicle_id, write_scenario
 
@@ -49,6 +50,8 @@ class SumoRun:
     controller_report: dict[str, Any] | None = None  # the controller's report()
     #: float (T, n_legs) queued vehicles per leg after each step of the horizon
     queues: np.ndarray | None = None
+    #: the SSM device's conflicts by encounter type, ``{type: count}``
+    conflict_types: dict[str, int] | None = None
 
 
 def run_schedule(
@@ -80,7 +83,9 @@ def run_schedule(
         files = write_scenario(cfg, schedule, out)
         tripinfo = out / "tripinfo.xml"
         stats = out / "statistics.xml"
+        ssm = out / "ssm.xml"
         args = sumo_arguments(files.sumocfg, tripinfo, stats)
+        args += cfg.safety.sumo_options(str(ssm))
         libsumo.start(args)
         try:
             started = time.perf_counter()
@@ -89,7 +94,13 @@ def run_schedule(
             sim_end = libsumo.simulation.getTime()
         finally:
             libsumo.close()
-        records = _read_tripinfo(tripinfo, schedule, queues)
+        conflicts = read_conflicts(ssm, schedule.n_vehicles)
+        records = dataclasses.replace(
+            _read_tripinfo(tripinfo, schedule, queues),
+            conflicts=conflicts.count,
+            min_ttc_s=conflicts.min_ttc_s,
+            max_drac_mps2=conflicts.max_drac_mps2,
+        )
         collisions, emergency, teleports = _read_statistics(stats)
     return SumoRun(
         records=records,
@@ -99,6 +110,7 @@ def run_schedule(
         sim_end_s=float(sim_end),
         wall_s=wall,
         queues=queues,
+        conflict_types=conflicts.by_type,
     )
 
 

@@ -87,8 +87,10 @@ def class_metrics(
 
     Each M has ``n_vehicles, n_departed, n_arrived, n_not_arrived, n_compared,
     mean_crossing_time_s, co2_g_per_veh, fuel_g_per_veh, consumption_score,
-    emission_score, throughput_veh_per_h, mean_insertion_delay_s``; "all"
-    also has ``queue_mean_veh`` and ``queue_max_veh`` (lists, one per leg).
+    emission_score, throughput_veh_per_h, mean_insertion_delay_s`` and the
+    near-conflicts (`safety_metrics`: ``conflicts_per_1000_veh, min_ttc_s,
+    max_drac_mps2``, over every vehicle of the class); "all" also has
+    ``queue_mean_veh`` and ``queue_max_veh`` (lists, one per leg).
     Means over an empty class are None.
 
     Args:
@@ -139,10 +141,31 @@ def class_metrics(
             "mean_insertion_delay_s": _mean(
                 (records.depart_s - records.scheduled_depart_s)[mask & delayed]
             ),
+            **safety_metrics(records, mask),
         }
     out["all"]["queue_mean_veh"] = [float(x) for x in records.queue_mean_veh]
     out["all"]["queue_max_veh"] = [float(x) for x in records.queue_max_veh]
     return out
+
+
+def safety_metrics(records: VehicleRecords, mask: np.ndarray) -> dict[str, Any]:
+    """Near-conflicts of the vehicles in `mask`, bool (N,): conflicts per
+    1,000 of them (each conflict counts for both vehicles of the pair, as
+    SUMO's SSM device writes it), the smallest TTC (s) and largest DRAC
+    (m/s^2) among their conflicts; None where the run did not count them,
+    and for TTC and DRAC where there was no conflict."""
+    if records.conflicts is None:
+        return dict.fromkeys(("conflicts_per_1000_veh", "min_ttc_s", "max_drac_mps2"))
+    n = int(mask.sum())
+    ttc = records.min_ttc_s[mask & np.isfinite(records.min_ttc_s)]
+    drac = records.max_drac_mps2[mask & np.isfinite(records.max_drac_mps2)]
+    return {
+        "conflicts_per_1000_veh": (
+            float(records.conflicts[mask].sum() * 1000.0 / n) if n else None
+        ),
+        "min_ttc_s": float(ttc.min()) if ttc.size else None,
+        "max_drac_mps2": float(drac.max()) if drac.size else None,
+    }
 
 
 def arrived_in_all(runs: Iterable[VehicleRecords]) -> np.ndarray:

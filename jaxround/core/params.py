@@ -100,6 +100,8 @@ class RewardParams:
         time_penalty: paper reward: subtracted every step in the network.
         time_weight: system reward: cost of a vehicle-second, per s.
         co2_weight: system reward: cost of a gram of CO2, per g.
+        conflict_weight: system reward: cost of a near-conflict, per vehicle
+            of the pair (`jaxround.core.surrogate_safety`).
     """
 
     speed_weight: jax.Array
@@ -107,6 +109,7 @@ class RewardParams:
     time_penalty: jax.Array
     time_weight: jax.Array
     co2_weight: jax.Array
+    conflict_weight: jax.Array
 
 
 @struct.dataclass
@@ -204,6 +207,7 @@ class EnvParams:
                 time_penalty=f(cfg.agent.time_penalty),
                 time_weight=f(cfg.agent.time_weight),
                 co2_weight=f(cfg.agent.co2_weight),
+                conflict_weight=f(cfg.agent.conflict_weight),
             ),
             relax_temperature=f(0.0),
         )

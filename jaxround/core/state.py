@@ -128,6 +128,14 @@ class EpisodeStats:
             (vehicle-steps).
         collisions: int, vehicles that ran into the one ahead (0 by design;
             counted so evaluations can show it).
+        conflicts: int (N,) near-conflicts each vehicle was part of, as
+            SUMO's SSM device counts them (`jaxround.core.surrogate_safety`).
+        min_ttc_s: float (N,) the smallest time to collision of each vehicle,
+            as follower or leader (inf: never closing in).
+        max_drac_mps2: float (N,) the largest deceleration to avoid a crash.
+        encounter_leader: int (M,) the vehicle each slot's current following
+            encounter is with (-1: none).
+        encounter_conflict: bool (M,) that encounter is a conflict already.
     """
 
     trip_co2_mg: jax.Array
@@ -137,19 +145,36 @@ class EpisodeStats:
     queue_samples: jax.Array
     overflow: jax.Array
     collisions: jax.Array
+    conflicts: jax.Array
+    min_ttc_s: jax.Array
+    max_drac_mps2: jax.Array
+    encounter_leader: jax.Array
+    encounter_conflict: jax.Array
 
     @classmethod
-    def zeros(cls, n: int, g: int) -> EpisodeStats:
-        """Nothing measured yet: N scheduled vehicles, G legs."""
+    def zeros(cls, n: int, g: int, m: int) -> EpisodeStats:
+        """Nothing measured yet: N scheduled vehicles, G legs, M slots."""
         zero = jnp.int32(0)
         trips, legs = jnp.zeros(n, jnp.float32), jnp.zeros(g, jnp.float32)
-        return cls(trips, trips, legs, legs, zero, zero, zero)
+        return cls(
+            trips, trips, legs, legs, zero, zero, zero,
+            conflicts=jnp.zeros(n, jnp.int32),
+            min_ttc_s=jnp.full(n, jnp.inf, jnp.float32),
+            max_drac_mps2=jnp.zeros(n, jnp.float32),
+            encounter_leader=-jnp.ones(m, jnp.int32),
+            encounter_conflict=jnp.zeros(m, bool),
+        )  # fmt: skip
 
-    def fields(self, n: int, g: int) -> dict[str, tuple[Any, tuple[int, ...], str]]:
+    def fields(
+        self, n: int, g: int, m: int
+    ) -> dict[str, tuple[Any, tuple[int, ...], str]]:
         """`_check`'s table of these fields, named ``stats.<field>``."""
         table: dict[str, tuple[Any, tuple[int, ...], str]] = {}
-        for name in ("trip_co2_mg", "trip_fuel_mg"):
+        for name in ("trip_co2_mg", "trip_fuel_mg", "min_ttc_s", "max_drac_mps2"):
             table[name] = (getattr(self, name), (n,), "f")
+        table["conflicts"] = (self.conflicts, (n,), "i")
+        table["encounter_leader"] = (self.encounter_leader, (m,), "i")
+        table["encounter_conflict"] = (self.encounter_conflict, (m,), "b")
         for name in ("queue_sum", "queue_max"):
             table[name] = (getattr(self, name), (g,), "f")
         for name in ("queue_samples", "overflow", "collisions"):
@@ -239,7 +264,7 @@ class EnvState:
             fields[name] = (getattr(self, name), (m,), "f")
         for name in ("insert_s", "arrival_s"):
             fields[name] = (getattr(self, name), (n,), "f")
-        fields.update(self.stats.fields(n, g))
+        fields.update(self.stats.fields(n, g, m))
         for name in Registrations._fields[1:]:
             fields[f"registrations.{name}"] = (
                 getattr(self.registrations, name), (m, g), "f",

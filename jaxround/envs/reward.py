@@ -69,6 +69,7 @@ def system_reward(
     params: EnvParams,
     dt: float,
     share: float = 1.0,
+    conflicts_step: jax.Array | None = None,
 ) -> jax.Array:
     """A reward for what the evaluation measures, per slot, float (M,).
 
@@ -81,11 +82,15 @@ def system_reward(
       ``share = 1`` their rewards add up to minus the system's cost. The
       AV's own: dt for being in the network.
     - CO2: all vehicles' CO2 of the step, shared the same way; the AV's own.
+    - near-conflicts (`reward.conflict_weight` each, 0 by default): the
+      conflicts that began in the step, counted once per vehicle of the pair
+      as SUMO's SSM device writes them, shared the same way; the AV's own.
 
     ::
 
         r_i = -w_t dt (share n_in_system / n_agents + (1 - share))
               -w_c (share co2_all_g / n_agents + (1 - share) co2_i_g)
+              -w_k (share conflicts_all / n_agents + (1 - share) conflicts_i)
 
     The shared part pays an AV for what it does to the others (the human
     drivers beside it, the AVs behind), the own part gives each AV a clear
@@ -101,6 +106,8 @@ def system_reward(
             `reward.co2_weight` (per g).
         dt: step length, s.
         share: weight of the roundabout's cost, in [0, 1].
+        conflicts_step: int (M,) conflicts each slot's vehicle entered in
+            the step; None: no conflict cost.
 
     Returns:
         float (M,) the reward of each AV slot, 0 elsewhere.
@@ -115,4 +122,10 @@ def system_reward(
     co2_cost = params.reward.co2_weight * (
         share * jnp.sum(co2_g) / n_agents + (1.0 - share) * co2_g
     )
-    return jnp.where(agent, -(time_cost + co2_cost), 0.0)
+    cost = time_cost + co2_cost
+    if conflicts_step is not None:
+        conflicts = jnp.where(active, conflicts_step, 0).astype(jnp.float32)
+        cost = cost + params.reward.conflict_weight * (
+            share * jnp.sum(conflicts) / n_agents + (1.0 - share) * conflicts
+        )
+    return jnp.where(agent, -cost, 0.0)

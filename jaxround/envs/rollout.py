@@ -119,6 +119,9 @@ def vehicle_records(env: RoundaboutEnv, state: EnvState) -> VehicleRecords:
     co2 = np.asarray(s.stats.trip_co2_mg, np.float64) / 1000.0
     fuel = np.asarray(s.stats.trip_fuel_mg, np.float64) / 1000.0
     arrival = np.asarray(s.arrival_s, np.float64)
+    conflicts = np.asarray(s.stats.conflicts, np.int64)
+    # as SUMO's SSM log: TTC and DRAC of the vehicles with a conflict
+    in_conflict = conflicts > 0
     return VehicleRecords(
         is_av=np.asarray(s.schedule.is_av, bool),
         origin=np.asarray(s.schedule.origin),
@@ -129,4 +132,7 @@ def vehicle_records(env: RoundaboutEnv, state: EnvState) -> VehicleRecords:
         fuel_g=np.where(nan(arrival), np.nan, fuel),
         queue_mean_veh=np.asarray(s.stats.queue_sum, np.float64) / samples,
         queue_max_veh=np.asarray(s.stats.queue_max, np.float64),
+        conflicts=conflicts,
+        min_ttc_s=np.where(in_conflict, np.asarray(s.stats.min_ttc_s), np.nan),
+        max_drac_mps2=np.where(in_conflict, np.asarray(s.stats.max_drac_mps2), np.nan),
     )

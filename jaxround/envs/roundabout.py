@@ -30,7 +30,7 @@ from jaxround.core.state import (
     Schedule,
     leg_order,
 )
-from jaxround.envs import departures, observe, queues, schedules
+from jaxround.envs import conflicts, departures, observe, queues, schedules
 from jaxround.envs.actions import command_from_action
 from jaxround.envs.assertiveness import retuned_params
 from jaxround.envs.reward import av_reward, system_reward
@@ -182,7 +182,7 @@ class RoundaboutEnv:
             insert_s=jnp.full(n, jnp.nan, jnp.float32),
             arrival_s=jnp.full(n, jnp.nan, jnp.float32),
             registrations=Registrations.empty(m, g),
-            stats=EpisodeStats.zeros(n, g),
+            stats=EpisodeStats.zeros(n, g, m),
         )
         state = self._insert(state, params, jnp.float32(0.0))
         return self.observation(state, params), state
@@ -262,6 +262,10 @@ class RoundaboutEnv:
             waiting = jnp.where(
                 v_next < dynamics.HALTING_SPEED, state.waiting_s + self.dt, 0.0
             )
+        with jax.named_scope("surrogate_safety"):
+            safety, conflicts_step = conflicts.step_conflicts(
+                state, arrived, leader, gap_next, v_next, self.cfg.safety
+            )
         with jax.named_scope("emissions"):
             # SUMO counts the arrival step in full (measured against tripinfo)
             co2_step, fuel_step = emissions.step_emissions_mg(
@@ -275,7 +279,7 @@ class RoundaboutEnv:
                 n_in_system = jnp.sum(state.active) + pending
                 reward = system_reward(
                     n_in_system, co2_step, state.active, agent, p, self.dt,
-                    share=self.cfg.agent.share,
+                    share=self.cfg.agent.share, conflicts_step=conflicts_step,
                 )  # fmt: skip
             else:
                 _, lane, _ = geometry.locate(net, state.route, state.pos)
@@ -288,10 +292,13 @@ class RoundaboutEnv:
         # 2. arrivals leave their slots
         vid = jnp.where(arrived, state.vid, self.n_schedule)  # out of range: dropped
         arrival_s = state.arrival_s.at[vid].set(t + self.dt, mode="drop")
-        stats = state.stats.replace(
-            trip_co2_mg=state.stats.trip_co2_mg.at[vid].set(co2, mode="drop"),
-            trip_fuel_mg=state.stats.trip_fuel_mg.at[vid].set(fuel, mode="drop"),
-            collisions=state.stats.collisions + jnp.sum(crashed),
+        stats = conflicts.add_conflicts(
+            state.stats, state.vid, safety, conflicts_step, self.n_schedule
+        )
+        stats = stats.replace(
+            trip_co2_mg=stats.trip_co2_mg.at[vid].set(co2, mode="drop"),
+            trip_fuel_mg=stats.trip_fuel_mg.at[vid].set(fuel, mode="drop"),
+            collisions=stats.collisions + jnp.sum(crashed),
         )
         active = state.active & ~arrived
         state = state.replace(

@@ -26,6 +26,7 @@ from jaxround.scenario.loader import (
     dataclass_from_dict,
     read_yaml,
 )
+from jaxround.scenario.safety import SafetyConfig
 
 
 @dataclass(frozen=True)
@@ -227,6 +228,8 @@ class AgentConfig:
     time_penalty: float = 1.0  # paper: subtracted per step (0: Eq. 3 exactly)
     time_weight: float = 1.0  # system: cost of one vehicle-second in the system
     co2_weight: float = 0.5  # system: cost of one gram of CO2
+    # system: cost of one near-conflict, per vehicle of the pair (SUMO's SSM)
+    conflict_weight: float = 0.0
     share: float = (
         0.5  # system: weight of all vehicles' cost (1) against the AV's own (0)
     )
@@ -246,7 +249,7 @@ class AgentConfig:
             )
         check_share(self.share, f"{where}.share")
         for name in ("speed_weight", "pollution_weight", "time_penalty",
-                     "time_weight", "co2_weight"):  # fmt: skip
+                     "time_weight", "co2_weight", "conflict_weight"):  # fmt: skip
             check_non_negative(getattr(self, name), f"{where}.{name}")
         if self.speed_weight + self.pollution_weight <= 0:
             raise ConfigError(f"{where}: speed_weight + pollution_weight must be > 0")
@@ -262,6 +265,7 @@ class ScenarioConfig:
     drivers: DriversConfig
     simulation: SimulationConfig
     agent: AgentConfig = AgentConfig()  # the AVs' observer and reward
+    safety: SafetyConfig = SafetyConfig()  # near-conflicts, the AVs' tau floor
     description: str = ""  # free text
 
     def validate(self) -> None:
@@ -273,6 +277,7 @@ class ScenarioConfig:
         self.drivers.av.validate("drivers.av")
         self.simulation.validate("simulation")
         self.agent.validate("agent")
+        self.safety.validate("safety")
         if self.demand.duration_s < self.simulation.dt_s:
             raise ConfigError(
                 "demand.duration_s: shorter than one step (simulation.dt_s)"
@@ -329,6 +334,7 @@ class ScenarioConfig:
         d.pop("simulation")
         d.pop("description")
         d.pop("agent")
+        d.pop("safety")
         d["dt_s"] = self.simulation.dt_s
         blob = json.dumps(d, sort_keys=True).encode()
         return hashlib.sha256(blob).hexdigest()[:16]
@@ -382,6 +388,7 @@ __all__ = [
     "LegConfig",
     "NetworkConfig",
     "ScenarioConfig",
+    "SafetyConfig",
     "SimulationConfig",
     "builtin_configs",
     "config_from_dict",

@@ -27,6 +27,13 @@ class VehicleRecords:
             horizon of the vehicles queued on each approach (halting there,
             speed below 0.1 m/s, plus those waiting to be inserted).
         queue_max_veh: float (n_legs,) the largest such queue.
+        conflicts: int (N,) near-conflicts the vehicle was part of, as SUMO's
+            SSM device writes them (one per vehicle of a pair; see
+            `jaxround.scenario.safety`); None where the run did not count them.
+        min_ttc_s: float (N,) the smallest time to collision among them
+            (nan: no conflict).
+        max_drac_mps2: float (N,) the largest deceleration to avoid a crash
+            among them (nan: no conflict).
     """
 
     is_av: np.ndarray
@@ -38,6 +45,9 @@ class VehicleRecords:
     fuel_g: np.ndarray
     queue_mean_veh: np.ndarray
     queue_max_veh: np.ndarray
+    conflicts: np.ndarray | None = None
+    min_ttc_s: np.ndarray | None = None
+    max_drac_mps2: np.ndarray | None = None
 
     @property
     def arrived(self) -> np.ndarray:

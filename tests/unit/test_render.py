@@ -101,7 +101,7 @@ def hand_state(env: RoundaboutEnv, shift: float = 0.0, step: int = STEP) -> EnvS
         insert_s=zeros_n,
         arrival_s=jnp.full(n, jnp.nan, f32),
         registrations=Registrations.empty(m, net.n_legs),
-        stats=EpisodeStats.zeros(n, net.n_legs),
+        stats=EpisodeStats.zeros(n, net.n_legs, m),
     )
 
 
