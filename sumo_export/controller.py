@@ -90,6 +90,8 @@ class PolicyController:
         av = cfg.drivers.av
         self.av_accel, self.av_decel = av.accel, av.decel
         self.av_tau, self.av_impatience = av.tau, av.impatience
+        # the time-gap floor of the actions, as `assertive_tau` applies it
+        self.min_tau = min(cfg.safety.min_av_tau_s, av.tau)
         self._lanes_of_edge: dict[str, int] = {}
         self.record_observations = False
         self.start_episode(schedule)
@@ -215,7 +217,7 @@ class PolicyController:
         """
         n = len(raw)
         u = np.tanh(np.nan_to_num(np.asarray(raw, np.float64)))
-        tau = self.av_tau * TAU_RANGE ** (-u)
+        tau = np.maximum(self.av_tau * TAU_RANGE ** (-u), self.min_tau)
         imp = np.clip(self.av_impatience + np.maximum(u, 0.0), 0.0, 1.0)
         is_av = (traffic.column("is_av")[:n] > 0.5).tolist()
         retuned = {}

@@ -78,7 +78,7 @@ def policy_behaviour(
         out[driver] = {
             "to_line": np.asarray(to_line)[agent],
             "speed": np.asarray(speed)[agent],
-            "tau": np.asarray(assertive_tau(av.tau, u))[agent],
+            "tau": np.asarray(assertive_tau(av.tau, u, cfg.safety.min_av_tau_s))[agent],
             "impatience": np.asarray(assertive_impatience(av.impatience, u))[agent],
         }
     return out

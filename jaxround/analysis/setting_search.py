@@ -67,14 +67,22 @@ DRAIN_S = 600.0
 
 @dataclass(frozen=True)
 class Objective:
-    """Cost of a vehicle's crossing: per second and per gram of CO2."""
+    """Cost of a vehicle's crossing: per second, per gram of CO2 and per
+    near-conflict (SUMO's SSM count, one per vehicle of a pair)."""
 
     time_weight: float = 1.0
     co2_weight: float = 0.5
     charge_exit: bool = False  # add what slow leavers still owe
+    conflict_weight: float = 0.0  # per conflict per vehicle
 
-    def __call__(self, time_s: jax.Array, co2_g: jax.Array) -> jax.Array:
-        return self.time_weight * time_s + self.co2_weight * co2_g
+    def __call__(
+        self, time_s: jax.Array, co2_g: jax.Array, conflicts_per_veh: jax.Array = 0.0
+    ) -> jax.Array:
+        return (
+            self.time_weight * time_s
+            + self.co2_weight * co2_g
+            + self.conflict_weight * conflicts_per_veh
+        )
 
 
 def setting_of(values: dict[str, float]) -> np.ndarray:
@@ -92,16 +100,28 @@ def vtype_setting(cfg: ScenarioConfig) -> np.ndarray:
     return setting_of({**own, "cruise_mps": SPACE["cruise_mps"][1]})
 
 
-def from_unit(unit: jax.Array) -> jax.Array:
+def bounds(min_tau: float = 0.0) -> dict[str, tuple[float, float]]:
+    """`SPACE` with tau's lower bound raised to the AVs' time-gap floor
+    `min_tau` (`SafetyConfig.min_av_tau_s`), where that is higher."""
+    low, high = SPACE["tau"]
+    if min_tau >= high:
+        raise ValueError(f"time-gap floor {min_tau} s: at or above tau's bound {high}")
+    return {**SPACE, "tau": (max(low, float(min_tau)), high)}
+
+
+def from_unit(unit: jax.Array, min_tau: float = 0.0) -> jax.Array:
     """Settings from points of the unit cube, float (..., D): each number
-    ``low + (high - low) * clip(x, 0, 1)``, so the bounds are reachable."""
-    low, high = (jnp.asarray(b, jnp.float32) for b in zip(*SPACE.values(), strict=True))
+    ``low + (high - low) * clip(x, 0, 1)`` of `bounds`, so the bounds are
+    reachable."""
+    box = bounds(min_tau).values()
+    low, high = (jnp.asarray(b, jnp.float32) for b in zip(*box, strict=True))
     return low + (high - low) * jnp.clip(unit, 0.0, 1.0)
 
 
-def to_unit(setting: np.ndarray) -> np.ndarray:
+def to_unit(setting: np.ndarray, min_tau: float = 0.0) -> np.ndarray:
     """The inverse of `from_unit` inside the bounds, float (..., D)."""
-    low, high = (np.asarray(b, np.float32) for b in zip(*SPACE.values(), strict=True))
+    box = bounds(min_tau).values()
+    low, high = (np.asarray(b, np.float32) for b in zip(*box, strict=True))
     return (np.asarray(setting, np.float32) - low) / (high - low)
 
 
@@ -248,11 +268,15 @@ def episode_scores(
     co2_g = mean(state.stats.trip_co2_mg) / 1000.0
     owed_co2, owed_time = exit_debt(jnp.nan_to_num(exit_speed), debt)
     exit_co2_g, exit_time_s = mean(owed_co2), mean(owed_time)
-    charged = objective(time_s + exit_time_s, co2_g + exit_co2_g)
+    # per scheduled vehicle, as the reports' conflicts per 1,000 vehicles
+    conflicts = jnp.sum(state.stats.conflicts) / state.stats.conflicts.shape[-1]
+    charged = objective(time_s + exit_time_s, co2_g + exit_co2_g, conflicts)
+    plain = objective(time_s, co2_g, conflicts)
     return {
-        "objective": charged if objective.charge_exit else objective(time_s, co2_g),
+        "objective": charged if objective.charge_exit else plain,
         "time_s": time_s,
         "co2_g": co2_g,
+        "conflicts_per_1000": 1000.0 * conflicts,
         "exit_time_s": exit_time_s,
         "exit_co2_g": exit_co2_g,
         "missing": jnp.sum(~arrived),
@@ -290,6 +314,7 @@ class SearchProblem:
         if rows is not None and rows < 1:
             raise ValueError(f"rows: {rows!r}, expected at least 1")
         self.cfg = cfg
+        self.min_tau = cfg.safety.min_av_tau_s  # the AVs' time-gap floor
         self.penetration = float(penetration)
         self.objective = objective
         self.rows = rows

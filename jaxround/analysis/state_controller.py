@@ -9,14 +9,17 @@ Each AV, each step, chooses three numbers of its setting (`SPACE` of
 of `FEATURES`, each about in [0, 1]: six numbers of the rich observation
 (`jaxround.envs.observe`): own speed, the gap to the leader, the distance to
 the yield line, how soon the ring traffic reaches the entry, how far round
-the ring the exit is and the time waited; and whether the vehicle ahead is a
-human driver (1) or an AV or no one (0), which matters in mixed traffic. ``accel`` and
+the ring the exit is and the time waited; whether the vehicle ahead is a
+human driver (1) or an AV or no one (0), which matters in mixed traffic;
+and how fast the vehicle closes in on its leader and how hard that leader
+braked in the last step, which tell a safe short gap from an unsafe one. ``accel`` and
 ``jm_timegap_minor`` stay those of a constant setting (a vType's, which a
 SUMO controller cannot retune each step). With all weights 0 the controller
 is that constant setting: the search starts there (`start_of`), so it is
 never worse on the search's schedules.
 
-theta: float (P,) = (`TUNED` x (1 + `FEATURES`)), row-major, P = 24.
+theta: float (P,) = (`TUNED` x (1 + `FEATURES`)), row-major, P = 30.
+tau never goes below the AVs' time-gap floor (`bounds`).
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from jaxround.analysis.setting_search import (
     SearchProblem,
     SlotTunedParams,
     Steer,
+    bounds,
     cruise_action,
     to_unit,
     with_setting,
@@ -53,47 +57,62 @@ OBSERVED = {
     "legs_to_exit": LEGS_TO_EXIT,
     "waiting": WAITING,
 }
-#: The controller's inputs: `OBSERVED` and whether the leader is human.
-FEATURES = (*OBSERVED, "leader_is_human")
+#: The controller's inputs: `OBSERVED`, whether the leader is human, how
+#: fast the vehicle closes in on it and how hard it brakes (safety's inputs).
+FEATURES = (*OBSERVED, "leader_is_human", "closing_speed", "leader_braking")
+#: Scales of the last two features: the legs' speed limit (m/s) and the
+#: drivers' decel (m/s^2), so that they are about in [0, 1].
+CLOSING_SCALE_MPS, BRAKING_SCALE_MPS2 = 13.89, 4.3
 #: The setting numbers chosen per AV and step.
 TUNED = ("tau", "impatience", "cruise_mps")
 N_PARAMS = len(TUNED) * (1 + len(FEATURES))
 
 
-def start_of(setting: np.ndarray) -> np.ndarray:
-    """theta (P,) of the controller that is the constant `setting` (D,)."""
-    unit = to_unit(setting)
+def start_of(setting: np.ndarray, min_tau: float = 0.0) -> np.ndarray:
+    """theta (P,) of the controller that is the constant `setting` (D,)
+    (`min_tau`: the time-gap floor of the box, `bounds`)."""
+    unit = to_unit(setting, min_tau)
     names = list(SPACE)
     theta = np.zeros((len(TUNED), 1 + len(FEATURES)), np.float32)
     theta[:, 0] = [unit[names.index(n)] for n in TUNED]
     return theta.reshape(-1)
 
 
-def features_of(obs: jax.Array, leader: jax.Array, is_av: jax.Array) -> jax.Array:
+def features_of(obs: jax.Array, leader: jax.Array, state: EnvState) -> jax.Array:
     """`FEATURES` of each slot, float (M, F).
 
     Args:
         obs: float (M, 17) rich observation rows.
         leader: int (M,) slot ahead, -1 for none.
-        is_av: bool (M,) vehicle class of each slot.
+        state: the slots' class, speed and last acceleration, (M,).
     """
-    behind_human = (leader >= 0) & ~is_av[jnp.maximum(leader, 0)]
-    observed = obs[:, list(OBSERVED.values())]
-    return jnp.concatenate([observed, behind_human[:, None].astype(obs.dtype)], -1)
+    has = leader >= 0
+    lead = jnp.maximum(leader, 0)
+    behind_human = has & ~state.is_av[lead]
+    closing = jnp.where(has, jnp.maximum(state.speed - state.speed[lead], 0.0), 0.0)
+    braking = jnp.where(has, jnp.maximum(-state.accel[lead], 0.0), 0.0)
+    extra = jnp.stack(
+        [behind_human, closing / CLOSING_SCALE_MPS, braking / BRAKING_SCALE_MPS2], -1
+    ).astype(obs.dtype)
+    return jnp.concatenate([obs[:, list(OBSERVED.values())], extra], -1)
 
 
-def tuned_numbers(theta: jax.Array, feats: jax.Array) -> dict[str, jax.Array]:
+def tuned_numbers(
+    theta: jax.Array, feats: jax.Array, min_tau: float = 0.0
+) -> dict[str, jax.Array]:
     """Each slot's `TUNED` numbers, name -> float (M,).
 
     Args:
         theta: float (P,).
         feats: float (M, F) `features_of` each slot.
+        min_tau: the AVs' time-gap floor (`bounds`).
     """
     table = theta.reshape(len(TUNED), 1 + len(FEATURES))
     unit = jnp.clip(table[:, 0] + feats @ table[:, 1:].T, 0.0, 1.0)  # (M, 3)
+    box = bounds(min_tau)
     out = {}
     for j, name in enumerate(TUNED):
-        low, high = SPACE[name]
+        low, high = box[name]
         out[name] = low + (high - low) * unit[:, j]
     return out
 
@@ -119,7 +138,8 @@ def controller_steer(
             obs, leader = rich_observation_and_leader(
                 env.net, state, base, env.route_destination
             )
-            n = tuned_numbers(theta, features_of(obs, leader, state.is_av))
+            feats = features_of(obs, leader, state)
+            n = tuned_numbers(theta, feats, problem.min_tau)
             params = slot_params(base, n["tau"], n["impatience"])
             return params, cruise_action(state.speed, n["cruise_mps"], env.dt)
 

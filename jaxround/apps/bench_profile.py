@@ -57,6 +57,7 @@ PHASES: tuple[tuple[str, str], ...] = (
     ("entry_test", "MSLink::opened in executeMove"),
     ("final_speed", "finalizeSpeed, processTraCISpeedControl"),
     ("move", "executeMove: positions, arrivals, collisions"),
+    ("surrogate_safety", "MSDevice_SSM: following TTC, DRAC and conflicts"),
     ("emissions", "the emission model (docs/sumo-map.md)"),
     ("reward", "the agents' reward"),
     ("insertion", "MSInsertionControl::emitVehicles"),

@@ -75,6 +75,42 @@ def parse_driver(spec: str | None) -> DriverSpec:
     return DriverSpec(spec, "policy", layout.observer, layout.action)
 
 
+#: AV vType numbers a command line may set (`with_av_numbers`).
+AV_NUMBERS = ("tau", "impatience", "accel", "jm_timegap_minor")
+
+
+def parse_av_numbers(text: str) -> dict[str, float]:
+    """``"tau=0.5,impatience=1"`` -> ``{"tau": 0.5, "impatience": 1.0}``.
+
+    Raises:
+        ValueError: a name not in `AV_NUMBERS` or a value that is no number.
+    """
+    numbers: dict[str, float] = {}
+    for item in filter(None, (part.strip() for part in text.split(","))):
+        name, sep, value = item.partition("=")
+        if not sep or name not in AV_NUMBERS:
+            raise ValueError(
+                f"AV numbers {text!r}: {item!r} is not NAME=VALUE with NAME one "
+                f"of {', '.join(AV_NUMBERS)}"
+            )
+        try:
+            numbers[name] = float(value)
+        except ValueError:
+            message = f"AV numbers {text!r}: {value!r} is not a number"
+            raise ValueError(message) from None
+    return numbers
+
+
+def with_av_numbers(cfg: ScenarioConfig, numbers: dict[str, float]) -> ScenarioConfig:
+    """`cfg` with these numbers in the AVs' vType (both simulators read it),
+    validated; e.g. ``{"tau": 0.5, "impatience": 1.0}``."""
+    if not numbers:
+        return cfg
+    data = cfg.to_dict()
+    data["drivers"]["av"].update(numbers)
+    return config_from_dict(data)
+
+
 def config_for(cfg: ScenarioConfig, driver: DriverSpec) -> ScenarioConfig:
     """`cfg` with the observer and action a driver reads and gives."""
     observer = driver.observer or cfg.agent.observer

@@ -40,7 +40,10 @@ from jaxround.envs.slots import redo_on_overflow
 from jaxround.scenario.config import ScenarioConfig
 from jaxround.scenario.schedule import make_schedule
 
-COMPARED = ("mean_crossing_time_s", "co2_g_per_veh", "fuel_g_per_veh", "n_arrived")
+COMPARED = (
+    "mean_crossing_time_s", "co2_g_per_veh", "fuel_g_per_veh", "n_arrived",
+    "conflicts_per_1000_veh",
+)  # fmt: skip
 
 
 def run_jax(
@@ -228,4 +231,14 @@ def parity_report(
         "jax_slot_overflow": int(sum(r["overflow"] for r in jax_runs)),
         "sumo_collisions": int(sum(r.collisions for r in sumo_runs)),
         "sumo_teleports": int(sum(r.teleports for r in sumo_runs)),
+        "sumo_conflict_types": conflict_types(sumo_runs),
     }
+
+
+def conflict_types(runs: Sequence[Any]) -> dict[str, int]:
+    """The SSM device's conflicts of SUMO runs by encounter type, summed."""
+    total: dict[str, int] = {}
+    for run in runs:
+        for kind, count in (run.conflict_types or {}).items():
+            total[kind] = total.get(kind, 0) + count
+    return total

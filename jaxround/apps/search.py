@@ -49,6 +49,9 @@ from jaxround.scenario.config import ScenarioConfig
 
 #: Added to the objective per vehicle that had not left at the step limit.
 MISSING_PENALTY = 1000.0
+#: Added to the objective per conflict per 1,000 vehicles above the limit
+#: of the constraint form (about 0.1 s of every vehicle's crossing each).
+CONFLICT_PENALTY = 5.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,9 +71,17 @@ class SearchBudget:
     std: float = 0.25
 
 
-def fitness_of(scores: dict[str, np.ndarray]) -> np.ndarray:
-    """float (K,): mean objective over the seeds, missing vehicles penalised."""
-    return scores["objective"].mean(1) + MISSING_PENALTY * scores["missing"].sum(1)
+def fitness_of(
+    scores: dict[str, np.ndarray], conflict_limit: float | None = None
+) -> np.ndarray:
+    """float (K,): mean objective over the seeds, missing vehicles penalised,
+    and with a `conflict_limit` (per 1,000 vehicles, mean over the seeds)
+    each conflict per 1,000 vehicles above it too."""
+    fitness = scores["objective"].mean(1) + MISSING_PENALTY * scores["missing"].sum(1)
+    if conflict_limit is None:
+        return fitness
+    excess = np.maximum(scores["conflicts_per_1000"].mean(1) - conflict_limit, 0.0)
+    return fitness + CONFLICT_PENALTY * excess
 
 
 def pareto_front(time_s: np.ndarray, co2_g: np.ndarray) -> np.ndarray:
@@ -85,16 +96,20 @@ def pareto_front(time_s: np.ndarray, co2_g: np.ndarray) -> np.ndarray:
 
 
 def search_constants(
-    problem: SearchProblem, budget: SearchBudget, seed: int = 0
+    problem: SearchProblem,
+    budget: SearchBudget,
+    seed: int = 0,
+    conflict_limit: float | None = None,
 ) -> tuple[SearchTrace, dict[str, np.ndarray]]:
-    """CMA-ES over constant settings from the middle of the box; the trace (in
-    the unit cube) and the scores (K, S) of every point scored."""
+    """CMA-ES over constant settings from the middle of the box (tau from the
+    time-gap floor up); the trace (in the unit cube) and the scores (K, S) of
+    every point scored."""
     kept: list[dict[str, np.ndarray]] = []
 
     def fitness(unit: np.ndarray) -> np.ndarray:
-        scores = problem.score_settings(np.asarray(from_unit(unit)))
+        scores = problem.score_settings(np.asarray(from_unit(unit, problem.min_tau)))
         kept.append(scores)
-        return fitness_of(scores)
+        return fitness_of(scores, conflict_limit)
 
     trace = minimise(
         fitness, np.full(len(SPACE), 0.5, np.float32), budget.std,
@@ -104,15 +119,19 @@ def search_constants(
 
 
 def search_controller(
-    problem: SearchProblem, setting: np.ndarray, budget: SearchBudget, seed: int = 0
+    problem: SearchProblem,
+    setting: np.ndarray,
+    budget: SearchBudget,
+    seed: int = 0,
+    conflict_limit: float | None = None,
 ) -> SearchTrace:
     """CMA-ES over the state-dependent controller, from the constant `setting`."""
 
     def fitness(thetas: np.ndarray) -> np.ndarray:
-        return fitness_of(score_controllers(problem, setting, thetas))
+        return fitness_of(score_controllers(problem, setting, thetas), conflict_limit)
 
     return minimise(
-        fitness, start_of(setting), budget.std, budget.population,
+        fitness, start_of(setting, problem.min_tau), budget.std, budget.population,
         budget.state_generations, seed, desc="state controller",
     )  # fmt: skip
 
@@ -135,7 +154,8 @@ def paired_objective(policy: np.ndarray, baseline: np.ndarray) -> dict[str, Any]
 
 
 def _means(scores: dict[str, np.ndarray], row: int) -> dict[str, float]:
-    means = ("objective", "time_s", "co2_g", "exit_time_s", "exit_co2_g")
+    means = ("objective", "time_s", "co2_g", "exit_time_s", "exit_co2_g",
+             "conflicts_per_1000")  # fmt: skip
     return {k: float(np.mean(scores[k][row])) for k in means} | {
         k: int(scores[k][row].sum()) for k in ("missing", "overflow")
     }
@@ -149,8 +169,14 @@ def run_search(
     budget: SearchBudget = SearchBudget(),
     objective: Objective = Objective(),
     max_vehicles: int | str | None = None,
+    conflict_limit: str | float | None = None,
 ) -> dict[str, Any]:
-    """One case, steps 1-3 of the module docstring; a JSON-able dict."""
+    """One case, steps 1-3 of the module docstring; a JSON-able dict.
+
+    `conflict_limit`: the constraint form, conflicts per 1,000 vehicles no
+    more than this (mean over the search seeds); ``"vtype"``: no more than
+    the AVs' own vType uncontrolled on those seeds; None: no constraint.
+    """
     t0 = time.perf_counter()
     # one compiled program per controller kind serves every batch and seed
     # count below (the final check's in blocks of the search's shape)
@@ -158,14 +184,19 @@ def run_search(
         cfg, penetration, search_seeds, objective, max_vehicles,
         rows=budget.population,
     )  # fmt: skip
-    trace, scored = search_constants(search, budget)
-    best = np.asarray(from_unit(trace.best))
+    vtype = vtype_setting(cfg)
+    if conflict_limit == "vtype":
+        own = search.score_settings(vtype[None])
+        conflict_limit = float(own["conflicts_per_1000"].mean())
+    elif conflict_limit is not None:
+        conflict_limit = float(conflict_limit)
+    trace, scored = search_constants(search, budget, conflict_limit=conflict_limit)
+    best = np.asarray(from_unit(trace.best, search.min_tau))
     t_constant = time.perf_counter() - t0
-    state_trace = search_controller(search, best, budget)
+    state_trace = search_controller(search, best, budget, conflict_limit=conflict_limit)
     t_state = time.perf_counter() - t0 - t_constant
 
     check = search.with_seeds(eval_seeds)
-    vtype = vtype_setting(cfg)
     constants = check.score_settings(np.stack([vtype, best]))
     parts = ablations(state_trace.best)
     state = score_controllers(check, best, np.stack(list(parts.values())))
@@ -174,7 +205,12 @@ def run_search(
         "constant": constants["objective"][1],
         "state": state["objective"][0],
     }
-    settings = np.asarray(from_unit(trace.points))
+    settings = np.asarray(from_unit(trace.points, search.min_tau))
+    conflicts = {
+        "vtype": constants["conflicts_per_1000"][0],
+        "constant": constants["conflicts_per_1000"][1],
+        "state": state["conflicts_per_1000"][0],
+    }
     front = pareto_front(scored["time_s"].mean(1), scored["co2_g"].mean(1))
     return {
         "scenario": cfg.name,
@@ -183,6 +219,8 @@ def run_search(
         "window_s": cfg.demand.duration_s,
         "origin_share": list(cfg.demand.origin_share),
         "objective": dataclasses.asdict(objective),
+        "min_av_tau_s": search.min_tau,
+        "conflict_limit_per_1000": conflict_limit,
         "budget": dataclasses.asdict(budget),
         "search_seeds": list(search_seeds),
         "eval_seeds": list(eval_seeds),
@@ -202,6 +240,15 @@ def run_search(
         },
         "constant_vs_vtype": paired_objective(obj["constant"], obj["vtype"]),
         "state_vs_constant": paired_objective(obj["state"], obj["constant"]),
+        # conflicts per 1,000 vehicles, paired over the evaluation seeds
+        "conflicts": {
+            "constant_vs_vtype": paired_objective(
+                conflicts["constant"], conflicts["vtype"]
+            ),
+            "state_vs_constant": paired_objective(
+                conflicts["state"], conflicts["constant"]
+            ),
+        },
         # which numbers' state dependence the controller's gain comes from
         "state_parts": {
             name: {
@@ -217,6 +264,7 @@ def run_search(
             "time_s": scored["time_s"].mean(1).tolist(),
             "co2_g": scored["co2_g"].mean(1).tolist(),
             "objective": scored["objective"].mean(1).tolist(),
+            "conflicts_per_1000": scored["conflicts_per_1000"].mean(1).tolist(),
         },
         "front": front.tolist(),
         "search_missing": int(scored["missing"].sum()),
@@ -306,6 +354,10 @@ def summary(result: dict[str, Any]) -> str:
         f"{ev['vtype']['objective']:.3f}, constant {ev['constant']['objective']:.3f}, "
         f"state controller {ev['state']['objective']:.3f}",
         f"constant vs vType: {pct(cv)}; state controller vs constant: {pct(sv)}",
+        "conflicts per 1,000 veh (eval): " + ", ".join(
+            f"{k} {e['conflicts_per_1000']:.1f}" for k, e in ev.items()
+        ) + (f"; limit {limit:.1f}" if (limit := result.get(
+            "conflict_limit_per_1000")) is not None else ""),
         "state dependence of one number only, vs constant: " + ", ".join(
             f"{k} {pct(v['vs_constant'])}" for k, v in result["state_parts"].items()
             if k != "full"

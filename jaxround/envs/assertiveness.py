@@ -42,9 +42,13 @@ def assertiveness(raw: jax.Array) -> jax.Array:
     return jnp.tanh(jnp.nan_to_num(raw))
 
 
-def assertive_tau(tau0: jax.Array, u: jax.Array) -> jax.Array:
-    """The headway of assertiveness u, float (...)."""
-    return tau0 * TAU_RANGE ** (-u)
+def assertive_tau(
+    tau0: jax.Array, u: jax.Array, min_tau: float | jax.Array = 0.0
+) -> jax.Array:
+    """The headway of assertiveness u, float (...), never below the time-gap
+    floor `min_tau` (`SafetyConfig.min_av_tau_s`; a vType already below it
+    keeps its own tau)."""
+    return jnp.maximum(tau0 * TAU_RANGE ** (-u), jnp.minimum(min_tau, tau0))
 
 
 def assertive_impatience(impatience0: jax.Array, u: jax.Array) -> jax.Array:
@@ -53,7 +57,10 @@ def assertive_impatience(impatience0: jax.Array, u: jax.Array) -> jax.Array:
 
 
 def retuned_params(
-    params: CarFollowing, raw: jax.Array, is_agent: jax.Array
+    params: CarFollowing,
+    raw: jax.Array,
+    is_agent: jax.Array,
+    min_tau: float | jax.Array = 0.0,
 ) -> CarFollowing:
     """Per-vehicle parameters with each AV's tau and impatience retuned.
 
@@ -62,10 +69,11 @@ def retuned_params(
             impatience float (M,).
         raw: float (M,) raw actions (NaN: none).
         is_agent: bool (M,) slots whose vehicle is an AV.
+        min_tau: the AVs' time-gap floor, s (`assertive_tau`).
     """
     u = jnp.where(is_agent, assertiveness(raw), 0.0)
     return params.replace(
-        tau=jnp.where(is_agent, assertive_tau(params.tau, u), params.tau),
+        tau=jnp.where(is_agent, assertive_tau(params.tau, u, min_tau), params.tau),
         impatience=jnp.where(
             is_agent, assertive_impatience(params.impatience, u), params.impatience
         ),

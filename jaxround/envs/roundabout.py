@@ -242,7 +242,9 @@ class RoundaboutEnv:
         agent = state.active & state.is_av
         with jax.named_scope("actions"):
             if self.cfg.agent.action == "assertiveness":
-                pv = retuned_params(pv, action[:, 0], agent)
+                pv = retuned_params(
+                    pv, action[:, 0], agent, self.cfg.safety.min_av_tau_s
+                )
                 command = jnp.full_like(state.speed, jnp.nan)
             else:
                 command = command_from_action(state, action, pv, self.dt)

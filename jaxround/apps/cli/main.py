@@ -10,7 +10,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from jaxround.apps.cli import calibration, search, simulate, training
+from jaxround.apps.cli import calibration, safety, search, simulate, training
 from jaxround.apps.cli.arguments import UsageError
 from jaxround.scenario.config import ConfigError
 
@@ -25,6 +25,7 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_parsers(sub)
     calibration.add_parsers(sub)
     search.add_parsers(sub)
+    safety.add_parsers(sub)
     from jaxround.study.cli import add_study_parser
 
     add_study_parser(sub)

@@ -77,12 +77,14 @@ def cmd_search(args: argparse.Namespace) -> None:
     budget = SearchBudget(
         args.population, args.generations, args.state_generations or args.generations
     )
-    objective = Objective(args.time_weight, args.co2_weight, args.charge_exit)
+    objective = Objective(
+        args.time_weight, args.co2_weight, args.charge_exit, args.conflict_weight
+    )
     search_seeds = list(range(SEARCH_SEED, SEARCH_SEED + args.search_seeds))
     eval_seeds = list(range(EVAL_SEED, EVAL_SEED + args.eval_seeds))
     result = run_search(
         cfg, args.penetration, search_seeds, eval_seeds, budget, objective,
-        args.max_vehicles,
+        args.max_vehicles, conflict_limit=args.conflict_limit,
     )  # fmt: skip
     if args.sumo:
         result["sumo"] = sumo_recheck(
@@ -103,6 +105,21 @@ def cmd_search(args: argparse.Namespace) -> None:
             f"{100 * s['objective']['rel_diff']:+.2f}%"
         )
     print(f"wrote {out / 'search.json'} and {out / 'search.png'}")
+
+
+def conflict_limit(text: str) -> str | float | None:
+    """--conflict-limit: 'vtype', 'none' or a number of conflicts per 1,000."""
+    if text in ("vtype", "none"):
+        return None if text == "none" else text
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: expected 'vtype', 'none' or conflicts per 1,000 vehicles"
+        ) from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text}: expected at least 0")
+    return value
 
 
 def add_parsers(sub: argparse._SubParsersAction) -> None:
@@ -186,6 +203,21 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
         "below the speed limit (jaxround.analysis.exit_debt; default on: "
         "without it, leaving slowly defers CO2 past the network's edge and "
         "scores as a saving)",
+    )
+    p.add_argument(
+        "--conflict-weight",
+        type=non_negative_float,
+        default=0.0,
+        help="cost of a near-conflict per vehicle of the pair, SUMO's SSM count "
+        "(default 0)",
+    )
+    p.add_argument(
+        "--conflict-limit",
+        type=conflict_limit,
+        default="vtype",
+        help="constraint: conflicts per 1,000 vehicles no more than this; "
+        "'vtype' (default): no more than the AVs' own vType uncontrolled on the "
+        "search seeds; 'none': no constraint",
     )
     p.add_argument(
         "--sumo",

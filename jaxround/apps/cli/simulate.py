@@ -82,10 +82,12 @@ def cmd_sumo(args: argparse.Namespace) -> None:
 
 
 def cmd_parity(args: argparse.Namespace) -> None:
+    from jaxround.apps.drivers import parse_av_numbers, with_av_numbers
     from jaxround.apps.parity import parity_report
 
     cfg = load_config(args.config)
     try:
+        cfg = with_av_numbers(cfg, parse_av_numbers(args.av or ""))
         report = parity_report(
             cfg, seeds_of(cfg, args.seeds), workers=args.workers,
             show_progress=not args.no_progress, penetration=args.penetration,
@@ -104,6 +106,7 @@ def cmd_parity(args: argparse.Namespace) -> None:
         ("CO2 (g/veh)", "co2_g_per_veh"),
         ("fuel (g/veh)", "fuel_g_per_veh"),
         ("arrived", "n_arrived"),
+        ("conflicts per 1,000 veh", "conflicts_per_1000_veh"),
     ]
     who = (
         "HV only"
@@ -115,7 +118,8 @@ def cmd_parity(args: argparse.Namespace) -> None:
     for label, key in rows:
         j, s_ = report["jax"]["all"][key], report["sumo"]["all"][key]
         err = report["rel_err"][key]
-        print(f"| {label} | {j:.2f} | {s_:.2f} | {100 * err:.2f}% |")
+        shown = "-" if err is None else f"{100 * err:.2f}%"
+        print(f"| {label} | {j:.2f} | {s_:.2f} | {shown} |")
     print(
         f"\nper-vehicle crossing time: median |error| "
         f"{report['per_vehicle_median_abs_err_s']:.2f} s, "
@@ -232,6 +236,11 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
         "--controller", default=None, metavar="SPEC",
         help="who drives the AVs in both simulators: uncontrolled (default, "
         "their vType), accel:A, cruise:V, eco[:B], timed[:H] or a policy file",
+    )  # fmt: skip
+    p.add_argument(
+        "--av", default=None, metavar="NAME=V,...",
+        help="the AVs' vType with these numbers in both simulators, e.g. "
+        "tau=0.5,impatience=1 (tau, impatience, accel, jm_timegap_minor)",
     )  # fmt: skip
     slots_option(p)
     drain_option(p)
