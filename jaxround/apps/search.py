@@ -318,6 +318,10 @@ def sumo_recheck(
         "objective": paired_objective(per_seed(runs["constant"]),
                                       per_seed(runs["vtype"])),
         "arrived": {k: [int(r.arrived.sum()) for r in v] for k, v in runs.items()},
+        "conflicts_per_1000": {
+            k: [float(r.conflicts.sum() * 1000.0 / len(r.conflicts)) for r in v]
+            for k, v in runs.items()
+        },
     }  # fmt: skip
 
 

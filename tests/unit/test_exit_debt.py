@@ -3,11 +3,15 @@ state-dependent controller's inputs and parts (`analysis.state_controller`)."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import jax.numpy as jnp
 import numpy as np
 
 from jaxround.analysis.exit_debt import debt_table, exit_debt
 from jaxround.analysis.state_controller import (
+    BRAKING_SCALE_MPS2,
+    CLOSING_SCALE_MPS,
     FEATURES,
     OBSERVED,
     TUNED,
@@ -39,13 +43,22 @@ def test_ablations_keep_one_number_state_dependent() -> None:
 
 
 def test_features_read_the_observation_and_mark_a_human_leader() -> None:
-    """The controller reads columns 10, 11 and 13-16 of the rich observation,
-    and its last feature is 1 only behind a human driver."""
+    """The controller reads columns 10, 11 and 13-16 of the rich observation;
+    then 1 only behind a human driver, the closing speed and the leader's
+    braking, each on its scale."""
     obs = jnp.tile(jnp.arange(17, dtype=jnp.float32), (4, 1))
     leader = jnp.array([-1, 0, 2, 1])
     is_av = jnp.array([False, True, True, True])  # slot 0 is the one human
-    feats = np.asarray(features_of(obs, leader, is_av))
+    speed = jnp.array([5.0, 10.0, 4.0, 12.0])
+    accel = jnp.array([-2.15, 0.0, 1.0, -4.3])
+    state = SimpleNamespace(is_av=is_av, speed=speed, accel=accel)
+    feats = np.asarray(features_of(obs, leader, state))
     assert feats.shape == (4, len(FEATURES))
     assert feats[0, : len(OBSERVED)].tolist() == [10, 11, 13, 14, 15, 16]
     # no leader, a human leader, an AV leader, an AV leader
-    assert feats[:, -1].tolist() == [0.0, 1.0, 0.0, 0.0]
+    assert feats[:, len(OBSERVED)].tolist() == [0.0, 1.0, 0.0, 0.0]
+    # closing in: 10 on 5, 4 on 4 (0), 12 on 10 m/s; braking: 2.15, 0, 0 m/s^2
+    np.testing.assert_allclose(
+        feats[:, -2], [0.0, 5.0 / CLOSING_SCALE_MPS, 0.0, 2.0 / CLOSING_SCALE_MPS]
+    )
+    np.testing.assert_allclose(feats[:, -1], [0.0, 2.15 / BRAKING_SCALE_MPS2, 0.0, 0.0])
