@@ -30,7 +30,11 @@ _T95 = (
     2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048, 2.045, 2.042,
 )  # fmt: skip
 #: Metrics compared: name in the result -> `VehicleRecords` attribute.
-METRICS = {"crossing_time_s": "crossing_time_s", "co2_g": "co2_g"}
+METRICS = {
+    "crossing_time_s": "crossing_time_s",
+    "co2_g": "co2_g",
+    "conflicts_per_1000_veh": "conflicts_per_1000",
+}
 #: Vehicle classes: name -> mask of `VehicleRecords.is_av`, None for all.
 CLASSES = {"all": None, "hv": False, "av": True}
 
@@ -67,7 +71,8 @@ def paired_difference(
     Returns:
         ``{metric: {"baseline", "policy", "diff", "rel_diff", "ci95_seeds",
         "ci95_vehicles", "per_seed_diff", "n_vehicles"}}`` for metrics
-        crossing_time_s and co2_g; intervals are ``[low, high]`` of the
+        crossing_time_s, co2_g and conflicts_per_1000_veh (None where a run
+        did not count conflicts); intervals are ``[low, high]`` of the
         difference (None where there are too few values).
 
     Raises:
@@ -89,9 +94,10 @@ def paired_difference(
             mask = a.arrived & b.arrived
             if CLASSES[vehicle_class] is not None:
                 mask &= a.is_av == CLASSES[vehicle_class]
-            if not mask.any():
+            values_a, values_b = getattr(a, attr), getattr(b, attr)
+            if not mask.any() or values_a is None or values_b is None:
                 continue
-            va, vb = getattr(a, attr)[mask], getattr(b, attr)[mask]
+            va, vb = values_a[mask], values_b[mask]
             pooled.append(va - vb)
             seed_pol.append(float(va.mean()))
             seed_base.append(float(vb.mean()))

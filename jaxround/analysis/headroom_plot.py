@@ -7,6 +7,12 @@ from pathlib import Path
 from typing import Any
 
 
+def conflicts(paired: dict[str, Any]) -> str:
+    """The variant's conflicts per 1,000 vehicles of a paired difference."""
+    d = paired.get("conflicts_per_1000_veh")
+    return "-" if d is None else f"{d['policy']:.1f}"
+
+
 def table(entries: Sequence[dict[str, Any]]) -> str:
     """A Markdown table: SUMO's paired differences (% of the AV vType) with
     the half widths of their 95% intervals over seeds and over vehicles, and
@@ -24,8 +30,9 @@ def table(entries: Sequence[dict[str, Any]]) -> str:
     lines = [
         "| AVs | variant | SUMO time s | SUMO time %, ±95% seeds / vehicles "
         "| SUMO CO2 g | SUMO CO2 % | JAX time % | JAX CO2 % "
+        "| conflicts per 1,000 veh SUMO / JAX "
         "| SUMO collisions / emergency brakings |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for e in entries:
         s, j = e["sumo"], e["jax"]
@@ -35,6 +42,7 @@ def table(entries: Sequence[dict[str, Any]]) -> str:
             f"| {cell(time_s)} | {co2['policy']:.2f} | {cell(co2)} "
             f"| {100 * j['crossing_time_s']['rel_diff']:+.1f} "
             f"| {100 * j['co2_g']['rel_diff']:+.1f} "
+            f"| {conflicts(s)} / {conflicts(j)} "
             f"| {e['sumo_collisions']} / {e['sumo_emergency_brakings']} |"
         )
     return "\n".join(lines)

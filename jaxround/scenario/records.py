@@ -58,6 +58,14 @@ class VehicleRecords:
         return np.isfinite(self.depart_s)
 
     @property
+    def conflicts_per_1000(self) -> np.ndarray | None:
+        """float (N,): each vehicle's conflicts times 1,000, whose mean over
+        vehicles is conflicts per 1,000 vehicles (None if not counted)."""
+        if self.conflicts is None:
+            return None
+        return self.conflicts.astype(np.float64) * 1000.0
+
+    @property
     def crossing_time_s(self) -> np.ndarray:
         """float (N,): arrival minus scheduled departure (nan if not arrived)."""
         return self.arrival_s - self.scheduled_depart_s
