@@ -116,6 +116,9 @@ class TrainerConfig:
         cfg = load_scenario(self.scenario)  # type: ignore[attr-defined]
         d = cfg.to_dict()
         d["agent"].update({k: v for k in AGENT_FIELDS if (v := getattr(self, k))})
+        weight = getattr(self, "conflict_weight", None)
+        if weight is not None:
+            d["agent"]["conflict_weight"] = float(weight)
         return config_from_dict(d) if d != cfg.to_dict() else cfg
 
     def slots(self) -> int:
@@ -158,6 +161,9 @@ class PPOConfig(TrainerConfig):
     observer: str = ""  # the AVs' observer; empty: the scenario's agent.observer
     action: str = ""  # what the AVs' action means; empty: the scenario's agent.action
     reward: str = ""  # the AVs' reward; empty: the scenario's agent.reward
+    # system reward: cost of a near-conflict per vehicle of the pair (SUMO's
+    # SSM count); None: the scenario's agent.conflict_weight
+    conflict_weight: float | None = None
     n_envs: int = 64  # roundabouts stepped side by side (split over devices)
     n_steps: int = 64  # env steps per rollout, per roundabout
     total_env_steps: int = 1_000_000  # env steps over all roundabouts and updates
