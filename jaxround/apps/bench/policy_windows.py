@@ -1,5 +1,5 @@
 """An exported policy driving the AVs over one window, in JAX and in SUMO,
-timed for `jaxround.apps.bench_training`.
+timed for `jaxround.apps.bench.training`.
 
 Both run the full scenario from its start: an untimed warm-up over [0, S)
 with the policy driving, then the timed window [S, 2S). Throughput is in
@@ -17,10 +17,8 @@ env-steps (roundabout-steps) per second, with vehicle-steps beside.
 
 from __future__ import annotations
 
-import multiprocessing
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -30,13 +28,14 @@ import numpy as np
 
 from agents.common.evaluation import switched_policy
 from agents.common.export import PolicyLayout
-from jaxround.apps.bench_jax import batch_schedules
+from jaxround.apps.bench.jax_timing import batch_schedules
 from jaxround.core.params import EnvParams
 from jaxround.core.state import EnvState
 from jaxround.envs.roundabout import make
 from jaxround.scenario.config import ScenarioConfig
 from jaxround.scenario.schedule import Schedule as NumpySchedule
 from jaxround.scenario.schedule import make_schedule
+from jaxround.sumo_files.processes import cpu_process_pool, cpu_spawn_context
 
 
 def window_steps(cfg: ScenarioConfig, seconds: float) -> int:
@@ -153,12 +152,10 @@ def measure_sumo_in_the_loop(
     """
     steps = window_steps(cfg, seconds)
     schedules = [make_schedule(cfg, seed=seed + i) for i in range(processes)]
-    ctx = multiprocessing.get_context("spawn")
-    barrier = ctx.Barrier(processes)  # reaches the workers as they start
-    with ProcessPoolExecutor(
-        max_workers=processes, mp_context=ctx, initializer=_keep_barrier,
-        initargs=(barrier,),
-    ) as pool:  # fmt: skip
+    barrier = cpu_spawn_context().Barrier(processes)  # reaches the workers at start
+    with cpu_process_pool(
+        processes, initializer=_keep_barrier, initargs=(barrier,)
+    ) as pool:
         futures = [
             pool.submit(_loop_worker, cfg, s, policy_path, steps) for s in schedules
         ]
