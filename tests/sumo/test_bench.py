@@ -216,6 +216,11 @@ def test_training_and_policy_rollouts_in_env_steps(result: dict[str, Any]) -> No
     )
     cpu = sum(row["cpu_s"] for row in loop["per_process"])
     assert loop["env_steps_per_cpu_s"] == pytest.approx(loop["processes"] * 10 / cpu)
+    # SUMO in the loop, too, repeats its window for at least a second
+    assert loop["min_timed_wall_s"] >= 1.0
+    for row in loop["per_process"]:
+        assert row["timed_wall_s"] >= 1.0 and row["repeats"] > 1
+        assert row["jax"]["env"] == "cpu"
     # an update is n_envs x n_steps env-steps; the rollout is a part of it
     assert ppo["env_steps_per_update"] == 4 * 8
     assert ppo["env_steps_per_s"] == pytest.approx(32 / ppo["s_per_update"])
