@@ -57,7 +57,7 @@ def device_record(device: Device) -> dict[str, Any]:
     """The device and the batches the rule gives it, for the result's JSON."""
     return {
         **asdict(device),
-        "memory_gib": round(device.memory_gib, 1),
+        "memory_gib": None if device.platform == "cpu" else round(device.memory_gib, 1),
         "batches": list(device_batches(device)),
         "policy_batch": policy_batch(device),
         "training_n_envs": device_n_envs(device),

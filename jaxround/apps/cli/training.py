@@ -54,13 +54,15 @@ def evaluate_in_sumo(
 
 def cmd_run(args: argparse.Namespace) -> None:
     from agents.common.config import PPOConfig, load_trainer_config_and_choice
+    from agents.common.device_batch import CPU_N_ENVS
     from jaxround.apps.pipeline import TRAIN_DIR, headline, main_job
 
     cfg = load_config(args.config)
     train_cfg, choice = load_trainer_config_and_choice(PPOConfig, args.train_config)
-    if args.quick:
+    if args.quick:  # as many updates as a CPU's quick run, whatever the batch
+        scale = 1 if choice is None else max(1, choice.n_envs // CPU_N_ENVS)
         train_cfg = train_cfg.replace(
-            total_env_steps=min(train_cfg.total_env_steps, QUICK_TRAIN_STEPS)
+            total_env_steps=min(train_cfg.total_env_steps, scale * QUICK_TRAIN_STEPS)
         )
     if args.total_steps is not None:
         train_cfg = train_cfg.replace(total_env_steps=args.total_steps)
@@ -302,7 +304,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seeds", type=positive_int, default=2, help="number of seeds")
     p.add_argument(
         "--quick", action="store_true",
-        help=f"1 seed, 3 penetrations, {QUICK_TRAIN_STEPS:,} training steps",
+        help=f"1 seed, 3 penetrations, {QUICK_TRAIN_STEPS:,} training steps "
+        "(per 64 roundabouts of n_envs: auto)",
     )  # fmt: skip
     p.add_argument(
         "--train-config", default=None,
