@@ -15,16 +15,27 @@ Ray (``pip install "jaxround[ray]"``) connects to the cluster at
 with `workers` CPUs (all of them by default) on 127.0.0.1, without its
 dashboard. Each run is one Ray task of one
 CPU; the cluster's nodes need jaxround installed (the same version).
+
+Either way the processes that run SUMO keep JAX on the CPU
+(`jaxround.sumo_files.processes`): the local pool's workers are spawned
+with ``JAX_PLATFORMS=cpu``, Ray's tasks get it in their runtime environment
+and pin JAX before the run, and the caller keeps the accelerator.
 """
 
 from __future__ import annotations
 
 import contextlib
-import multiprocessing
 import os
 from collections.abc import Callable, Iterator
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import Future
 from typing import Any, Protocol
+
+from jaxround.sumo_files.processes import (
+    PLATFORMS_VARIABLE,
+    SUMO_PROCESS_PLATFORM,
+    cpu_process_pool,
+    pin_jax_to_cpu,
+)
 
 #: The pools a sweep can run in.
 EXECUTORS = ("local", "ray")
@@ -79,9 +90,7 @@ def sumo_pool(
     if name == "ray":
         yield RayPool(workers)
         return
-    ctx = multiprocessing.get_context("spawn")
-    n = max(1, workers or os.cpu_count() or 1)
-    with ProcessPoolExecutor(max_workers=n, mp_context=ctx) as pool:
+    with cpu_process_pool(workers or os.cpu_count() or 1) as pool:
         yield pool
 
 
@@ -106,11 +115,15 @@ class RayPool:
                     _node_ip_address="127.0.0.1",
                 )
         self._ray = ray
-        self._task = ray.remote(num_cpus=1)(_call)
+        self._task = ray.remote(
+            num_cpus=1,
+            runtime_env={"env_vars": {PLATFORMS_VARIABLE: SUMO_PROCESS_PLATFORM}},
+        )(_call)
 
     def submit(self, fn: Callable[..., Any], /, *args: Any) -> Future:
         return self._task.remote(fn, *args).future()
 
 
 def _call(fn: Callable[..., Any], *args: Any) -> Any:
+    pin_jax_to_cpu()
     return fn(*args)

@@ -50,6 +50,7 @@ from jaxround.envs.assertiveness import RAW_BOUND
 from jaxround.envs.observe import OBSERVATION_SIZES
 from jaxround.scenario.config import DRAIN_S, ScenarioConfig
 from jaxround.scenario.schedule import Schedule, make_schedule
+from jaxround.sumo_files.processes import in_child_process, pin_jax_to_cpu
 from sumo_export.controller import PolicyController, PolicyFn
 from sumo_export.runner import sumo_arguments
 from sumo_export.scenario import vehicle_id, write_scenario
@@ -73,6 +74,11 @@ class SumoParallelEnv(ParallelEnv):
         max_slots: vehicle slots of the observer (None: what the road holds);
             more vehicles than slots raise OverflowError.
         workdir: where each run's SUMO files go (None: a temporary folder).
+        cpu_only: pin this process's JAX (the observer) to the CPU before it
+            starts a backend (`jaxround.sumo_files.processes`); None: where
+            the environment is built in a process of its own (a vector
+            environment's worker), so that no worker takes the GPU; give
+            True in an RLlib env runner (a Ray actor).
 
     Attributes:
         agents: ids of the AVs in the network (SUMO's ids, ``"v<index>"``).
@@ -92,7 +98,10 @@ class SumoParallelEnv(ParallelEnv):
         observer: str | None = None,
         max_slots: int | None = DEFAULT_SLOTS,
         workdir: str | Path | None = None,
+        cpu_only: bool | None = None,
     ) -> None:
+        if cpu_only or (cpu_only is None and in_child_process()):
+            pin_jax_to_cpu()
         observer = cfg.agent.observer if observer is None else observer
         if observer not in OBSERVATION_SIZES:
             raise ValueError(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
@@ -10,7 +11,7 @@ from xml.sax.saxutils import quoteattr
 from jaxround.scenario.config import DriverConfig, ScenarioConfig
 from jaxround.scenario.edges import route_edges
 from jaxround.scenario.schedule import Schedule
-from jaxround.sumo_files.netconvert import build_network
+from jaxround.sumo_files.netconvert import network_file, plain_xml
 
 HV_TYPE = "hv"
 AV_TYPE = "av"
@@ -129,12 +130,20 @@ def write_scenario(
 ) -> ScenarioFiles:
     """Write `<name>.net.xml`, `<name>.rou.xml` and `<name>.sumocfg` into `out_dir`.
 
-    Also writes the schedule as `<name>.schedule.npz` for the JAX side.
+    The network is netconvert's once per network
+    (`jaxround.sumo_files.netconvert.network_file`, the JAX side's cache),
+    copied here beside its plain XML (`<name>.nod.xml`, `<name>.edg.xml`),
+    so that the folder opens alone in sumo-gui. Also writes the schedule as
+    `<name>.schedule.npz` for the JAX side.
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     stem = cfg.name
-    net = build_network(cfg.network, out_dir, stem)
+    net = out_dir / f"{stem}.net.xml"
+    shutil.copyfile(network_file(cfg), net)
+    nodes, edges = plain_xml(cfg.network)
+    (out_dir / f"{stem}.nod.xml").write_text(nodes)
+    (out_dir / f"{stem}.edg.xml").write_text(edges)
     routes = out_dir / f"{stem}.rou.xml"
     routes.write_text(routes_xml(cfg, schedule))
     sumocfg = out_dir / f"{stem}.sumocfg"

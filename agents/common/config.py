@@ -5,6 +5,8 @@
     scenario = cfg.training_scenario()          # the short training episodes
     apg = load_apg_config("apg_milan")          # the analytic-gradient trainer
 
+``n_envs: auto`` sizes the batch to the device (`agents.common.device_batch`).
+
 An unknown key, a value of the wrong type or out of range raises
 `jaxround.scenario.config.ConfigError` naming the field (``lr: -0.1, expected > 0``)
 before anything runs. Derived numbers (`num_updates`, `minibatch_size`) are
@@ -22,6 +24,12 @@ from typing import Any, ClassVar, TypeVar
 
 import yaml
 
+from agents.common.device_batch import (
+    AUTO,
+    DeviceChoice,
+    size_for_device,
+    this_device,
+)
 from jaxround.scenario.config import (
     ACTIONS,
     OBSERVERS,
@@ -116,9 +124,8 @@ class TrainerConfig:
         cfg = load_scenario(self.scenario)  # type: ignore[attr-defined]
         d = cfg.to_dict()
         d["agent"].update({k: v for k in AGENT_FIELDS if (v := getattr(self, k))})
-        weight = getattr(self, "conflict_weight", None)
-        if weight is not None:
-            d["agent"]["conflict_weight"] = float(weight)
+        if (weight := getattr(self, "conflict_weight", None)) is not None:
+            d["agent"]["conflict_weight"] = float(weight)  # a near-conflict's cost
         return config_from_dict(d) if d != cfg.to_dict() else cfg
 
     def slots(self) -> int:
@@ -161,10 +168,8 @@ class PPOConfig(TrainerConfig):
     observer: str = ""  # the AVs' observer; empty: the scenario's agent.observer
     action: str = ""  # what the AVs' action means; empty: the scenario's agent.action
     reward: str = ""  # the AVs' reward; empty: the scenario's agent.reward
-    # system reward: cost of a near-conflict per vehicle of the pair (SUMO's
-    # SSM count); None: the scenario's agent.conflict_weight
-    conflict_weight: float | None = None
-    n_envs: int = 64  # roundabouts stepped side by side (split over devices)
+    conflict_weight: float | None = None  # per conflict; None: agent.conflict_weight
+    n_envs: int = 64  # roundabouts side by side (split over devices); YAML: auto
     n_steps: int = 64  # env steps per rollout, per roundabout
     total_env_steps: int = 1_000_000  # env steps over all roundabouts and updates
     gamma: float = 0.99  # discount per step of dt
@@ -241,7 +246,7 @@ class APGConfig(TrainerConfig):
     action: str = ""  # what the AVs' action means; empty: the scenario's agent.action
     reward: str = ""  # the AVs' reward; empty: the scenario's agent.reward
     relax_temperature: float = 0.5  # training dynamics' smoothness; 0: exact (eval)
-    n_envs: int = 64  # roundabouts stepped side by side (split over devices)
+    n_envs: int = 64  # roundabouts side by side (split over devices); YAML: auto
     horizon: int = 32  # env steps per differentiated window (truncated backprop)
     total_env_steps: int = 1_000_000  # env steps over all roundabouts and updates
     lr: float = 1e-3  # Adam learning rate (start value when annealed)
@@ -329,10 +334,18 @@ def load_apg_config(source: str | Path | None = None) -> APGConfig:
 
 def load_trainer_config(cls: type[Config], source: str | Path | None = None) -> Config:
     """Load and validate a config of class `cls` (default: its ``*_milan``)."""
+    return load_trainer_config_and_choice(cls, source)[0]
+
+
+def load_trainer_config_and_choice(
+    cls: type[Config], source: str | Path | None = None
+) -> tuple[Config, DeviceChoice | None]:
+    """`load_trainer_config`, and what ``n_envs: auto`` chose (None: the
+    config gives a number)."""
     kind = cls.KIND
     source = f"{kind.lower()}_milan" if source is None else source
     data = read_yaml(source, builtin_trainer_configs(kind), kind)
-    return trainer_config_from_dict(cls, data if data is not None else {})
+    return trainer_config_and_choice(cls, data if data is not None else {})
 
 
 def ppo_config_from_dict(data: Any) -> PPOConfig:
@@ -349,9 +362,20 @@ def trainer_config_from_dict(cls: type[Config], data: Any) -> Config:
     """Build and validate a config of class `cls` from plain data (strict keys
     and types; missing keys take defaults), with the scenario's loader
     (`jaxround.scenario.loader.dataclass_from_dict`)."""
+    return trainer_config_and_choice(cls, data)[0]
+
+
+def trainer_config_and_choice(
+    cls: type[Config], data: Any
+) -> tuple[Config, DeviceChoice | None]:
+    """`trainer_config_from_dict`, ``n_envs: auto`` sized to this machine's
+    device first; what it chose, or None."""
+    choice = None
+    if isinstance(data, dict) and data.get("n_envs") == AUTO:
+        data, choice = size_for_device(cls, data, this_device())
     cfg = dataclass_from_dict(cls, data, f"{cls.KIND} config")
     cfg.validate()
-    return cfg
+    return cfg, choice
 
 
 def _require(ok: bool, where: str, value: Any, expected: str) -> None:
@@ -370,6 +394,8 @@ __all__ = [
     "load_apg_config",
     "load_ppo_config",
     "load_trainer_config",
+    "load_trainer_config_and_choice",
     "ppo_config_from_dict",
+    "trainer_config_and_choice",
     "trainer_config_from_dict",
 ]

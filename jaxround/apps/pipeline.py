@@ -189,6 +189,7 @@ def main_job(
     workers: int | None = None,
     progress: bool = True,
     say: Callable[[str], None] = print,
+    device_choice: Any = None,
 ) -> dict[str, Any]:
     """Scenario files, PPO training, export, evaluation in JAX and SUMO.
 
@@ -198,6 +199,8 @@ def main_job(
         seeds: schedule seeds of the evaluation.
         penetrations: AV shares of the evaluation.
         train_config: the `agents.common.config.PPOConfig` to train.
+        device_choice: what ``n_envs: auto`` chose for it
+            (`agents.common.device_batch.DeviceChoice`), kept in the results.
 
     Returns:
         The ``results.json`` object: ``{"sumo": {label: M}, "jax": {label:
@@ -214,7 +217,8 @@ def main_job(
     train_dir = out / TRAIN_DIR
     train_dir.mkdir(parents=True, exist_ok=True)
     clear_run(train_dir)
-    (train_dir / "config.yaml").write_text(train_config.to_yaml())
+    record = device_choice.as_comment() if device_choice is not None else ""
+    (train_dir / "config.yaml").write_text(record + train_config.to_yaml())
     say(
         f"[2/4] PPO: {train_config.num_updates} updates of "
         f"{train_config.n_envs} x {train_config.n_steps} env steps into {train_dir}"
@@ -230,6 +234,9 @@ def main_job(
         "env_steps": trained["updates"] * train_config.env_steps_per_update,
         "env_steps_per_s": trained["env_steps_per_s"],
         "last": trained["last"],
+        "n_envs": train_config.n_envs,
+        "n_steps": train_config.n_steps,
+        "device_batch": None if device_choice is None else device_choice.to_dict(),
     }
     result["wall_time_s"] = round(time.time() - started, 1)
     write_json(result, out / "results.json")

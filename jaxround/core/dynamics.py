@@ -84,7 +84,7 @@ def planned_speed(
     veh = Vehicles(route, pos, speed, speed_factor, active, waiting_s)
     step = Stepping(dt, n_substeps, action_step)
     # each phase in its own named scope: `jaxround bench --profile` reads
-    # them back from the compiled program (`jaxround.apps.bench_profile`)
+    # them back from the compiled program (`jaxround.apps.bench.profile`)
     with jax.named_scope("start_speeds"):
         start = planning.start_speeds(net, car, veh, step=step, command=command)
     with jax.named_scope("neighbour_tables"):

@@ -75,7 +75,10 @@ class RoundaboutEnv:
         self.cfg = cfg
         self.network = network
         self.net = geometry.NetArrays.from_network(network)
-        self.max_vehicles = resolve_slots(max_vehicles, cfg, network)
+        self.max_vehicles = resolve_slots(
+            max_vehicles, cfg, network,
+            build_env=lambda m, s: RoundaboutEnv(cfg, network, m, episode_s=s),
+        )  # fmt: skip
         self.n_schedule = cfg.demand.n_vehicles
         self.dt = cfg.simulation.dt_s
         self.n_substeps = idm.idm_substeps(self.dt)

@@ -34,7 +34,7 @@ import tempfile
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, TypeVar
+from typing import Any, Protocol, TypeVar
 
 import jax
 import jax.numpy as jnp
@@ -45,8 +45,24 @@ from jaxround.core.network import CompiledNetwork
 from jaxround.scenario.config import ScenarioConfig
 from jaxround.scenario.schedule import make_schedule
 
-if TYPE_CHECKING:
-    from jaxround.envs.roundabout import RoundaboutEnv
+
+class MeasuredEnv(Protocol):
+    """What the measurement steps: the environment (`RoundaboutEnv`), given
+    by its caller so that this module need not import it."""
+
+    max_vehicles: int
+    episode_steps: int
+    default_params: Any
+
+    def schedule_from_numpy(self, schedule: Any) -> Any: ...
+
+    def reset_to_schedule(self, schedule: Any, params: Any) -> tuple: ...
+
+    def step_env(self, key: Any, state: Any, action: Any, params: Any) -> tuple: ...
+
+
+#: Builds the measuring environment: (slots M, episode seconds) -> environment.
+EnvFactory = Callable[[int, float], MeasuredEnv]
 
 #: Schedules of the measurement (half human drivers only, half AVs only).
 SIZING_SEEDS = 8
@@ -113,7 +129,7 @@ def _write_cache(path: Path, sizing: SlotSizing) -> None:
     os.replace(tmp.name, path)  # parallel processes never see half a file
 
 
-def peak_occupancy(env: RoundaboutEnv, schedules: list, steps: int) -> tuple[int, int]:
+def peak_occupancy(env: MeasuredEnv, schedules: list, steps: int) -> tuple[int, int]:
     """The most vehicles any of `steps` steps held, over the schedules (numpy
     `Schedule`s) run side by side in one vmapped scan, AVs uncontrolled, and
     the runs' slot overflow (vehicle-steps)."""
@@ -139,15 +155,19 @@ def peak_occupancy(env: RoundaboutEnv, schedules: list, steps: int) -> tuple[int
     return int(np.max(most)), int(np.sum(overflow))
 
 
-def traffic_slots(cfg: ScenarioConfig, network: CompiledNetwork) -> SlotSizing:
+def traffic_slots(
+    cfg: ScenarioConfig, network: CompiledNetwork, build_env: EnvFactory
+) -> SlotSizing:
     """The slots the scenario's demand needs (see the module docstring);
-    measured once per scenario fingerprint, then read from the cache."""
+    measured once per scenario fingerprint, then read from the cache.
+
+    Args:
+        build_env: (slots M, episode seconds) -> the scenario's environment.
+    """
     path = _cache_file(cfg)
     cached = _read_cache(path)
     if cached is not None:
         return cached
-    from jaxround.envs.roundabout import RoundaboutEnv  # the env imports us
-
     road = road_capacity(network, cfg)
     seconds = min(SIZING_SECONDS, cfg.demand.duration_s)
     schedules = [
@@ -155,7 +175,7 @@ def traffic_slots(cfg: ScenarioConfig, network: CompiledNetwork) -> SlotSizing:
         for i in range(SIZING_SEEDS)
     ]
     for slots in sorted({min(SIZING_PROBE, road), road}):
-        env = RoundaboutEnv(cfg, network, max_vehicles=slots, episode_s=seconds)
+        env = build_env(slots, seconds)
         peak, overflow = peak_occupancy(env, schedules, env.episode_steps)
         if not overflow:
             break
@@ -165,11 +185,15 @@ def traffic_slots(cfg: ScenarioConfig, network: CompiledNetwork) -> SlotSizing:
 
 
 def resolve_slots(
-    max_vehicles: int | str | None, cfg: ScenarioConfig, network: CompiledNetwork
+    max_vehicles: int | str | None,
+    cfg: ScenarioConfig,
+    network: CompiledNetwork,
+    build_env: EnvFactory,
 ) -> int:
     """The slots M an environment gets: `max_vehicles` if given, else the
-    config's ``simulation.max_vehicles``, else `traffic_slots`; ``"road"``
-    (either place) gives what the road holds.
+    config's ``simulation.max_vehicles``, else `traffic_slots` (measured in
+    environments of `build_env`); ``"road"`` (either place) gives what the
+    road holds.
 
     Raises:
         ValueError: a `max_vehicles` that is not a positive integer or "road".
@@ -177,7 +201,7 @@ def resolve_slots(
     if max_vehicles is None:
         max_vehicles = cfg.simulation.max_vehicles
     if max_vehicles is None:
-        return traffic_slots(cfg, network).max_vehicles
+        return traffic_slots(cfg, network, build_env).max_vehicles
     if max_vehicles == ROAD:
         return road_capacity(network, cfg)
     if isinstance(max_vehicles, bool | str) or int(max_vehicles) != max_vehicles:

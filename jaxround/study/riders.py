@@ -10,14 +10,14 @@ server and the rides whose delay is measured.
 from __future__ import annotations
 
 import asyncio
-import concurrent.futures
 import json
-import multiprocessing
 import os
 import time
 import urllib.error
 import urllib.request
 from typing import Any
+
+from jaxround.sumo_files.processes import cpu_process_pool
 
 #: The scripted driver's target speed, m/s.
 TARGET_SPEED_MPS = 6.0
@@ -31,10 +31,7 @@ RIDER_NICE = 10
 
 def ride_all(base: str, participants: int) -> list[dict[str, Any]]:
     """`participants` scripted rides at once, in a process at `RIDER_NICE`."""
-    context = multiprocessing.get_context("spawn")
-    with concurrent.futures.ProcessPoolExecutor(
-        1, mp_context=context, initializer=os.nice, initargs=(RIDER_NICE,)
-    ) as pool:
+    with cpu_process_pool(1, initializer=os.nice, initargs=(RIDER_NICE,)) as pool:
         return pool.submit(_ride_all, base, participants).result()
 
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
-import multiprocessing
 import os
 import secrets
 import time
@@ -23,6 +22,7 @@ from jaxround.study.sim import RideSpec
 from jaxround.study.storage import StudyDatabase, utc_now
 from jaxround.study.telemetry import server_figures
 from jaxround.study.worker import FRAME_HEADER, ride_process
+from jaxround.sumo_files.processes import cpu_spawn_context
 
 #: Frames waiting for a slow browser; older ones are dropped (and counted).
 MAX_QUEUED_FRAMES = 20
@@ -79,7 +79,7 @@ class RideManager:
         self.database = database
         self.policy = policy
         self.rides: dict[str, Ride] = {}
-        self._context = multiprocessing.get_context("spawn")
+        self._context = cpu_spawn_context()  # rides keep JAX off the GPU
         self._tasks: set[asyncio.Task] = set()
 
     @property

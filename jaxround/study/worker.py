@@ -46,6 +46,7 @@ from jaxround.study.priority import RIDE_RT_PRIORITY, raise_priority
 from jaxround.study.sim import RideSimulation, RideSpec
 from jaxround.study.storage import utc_now
 from jaxround.study.telemetry import hard_brakings, summarize
+from jaxround.sumo_files.processes import pin_jax_to_cpu
 
 #: Header of a frame message: step start (ns) and step number.
 FRAME_HEADER = struct.Struct(">qI")
@@ -59,6 +60,7 @@ class ServerGoneError(Exception):
 
 def ride_process(conn: Connection, spec: RideSpec, connect_timeout_s: float) -> None:
     """The ride process's entry point: warm up, wait for start, drive, report."""
+    pin_jax_to_cpu()  # before the controller's JAX starts a backend
     started = utc_now()
     record: dict[str, Any] = {"status": "error", "error": None, "summary": {}}
     sim = None

@@ -6,6 +6,9 @@ The edges' ids are those of `jaxround.scenario.edges`.
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
+import json
 import math
 import os
 import subprocess
@@ -110,16 +113,26 @@ def build_network(net: NetworkConfig, out_dir: Path, stem: str) -> Path:
     return net_path
 
 
-def network_file(cfg: ScenarioConfig, workdir: str | Path | None = None) -> Path:
-    """The scenario's `.net.xml`, built once per network fingerprint and cached.
+def network_fingerprint(net: NetworkConfig) -> str:
+    """Short hash of the network settings: all that netconvert's output
+    depends on (scenarios that differ in demand or drivers share it)."""
+    blob = json.dumps(dataclasses.asdict(net), sort_keys=True).encode()
+    return hashlib.sha256(blob).hexdigest()[:16]
 
-    The cache lives in ``$XDG_CACHE_HOME/jaxround/networks`` (``~/.cache`` by
-    default); a network is built in a temporary folder and moved into place, so
-    parallel processes never see half a file.
+
+def network_file(cfg: ScenarioConfig, workdir: str | Path | None = None) -> Path:
+    """The scenario's `.net.xml`, built once per network and cached.
+
+    The JAX side compiles it, and `sumo_export.scenario.write_scenario`
+    copies it into each scenario folder. The cache lives in
+    ``$XDG_CACHE_HOME/jaxround/networks/<name>-<network_fingerprint>``
+    (``~/.cache`` by default); a network is built in a temporary folder and
+    moved into place, so parallel processes never see half a file.
     """
     if workdir is None:
         cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
-        workdir = cache / "jaxround" / "networks" / f"{cfg.name}-{cfg.fingerprint()}"
+        key = f"{cfg.name}-{network_fingerprint(cfg.network)}"
+        workdir = cache / "jaxround" / "networks" / key
     workdir = Path(workdir)
     path = workdir / f"{cfg.name}.net.xml"
     if not path.exists():

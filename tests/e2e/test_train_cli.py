@@ -241,3 +241,27 @@ def test_evaluate_refuses(
     assert "give --out DIR" in capsys.readouterr().err
     assert main(["evaluate", "--policy", str(tmp_path / "none")]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_n_envs_auto_on_the_cpu_is_the_run_of_64(tmp_path: Path, capsys) -> None:
+    """`n_envs: auto` on a CPU trains exactly the run of ``n_envs: 64``, says
+    so, and heads the run's config.yaml with the choice."""
+    data = {**tiny_config().to_dict(), "n_envs": 64, "total_env_steps": 64 * 8}
+    data["n_steps"], data["minibatches"] = 8, 2
+    runs = {}
+    for label, n_envs in (("auto", "auto"), ("64", 64)):
+        path = tmp_path / f"{label}.yaml"
+        path.write_text(yaml.safe_dump({**data, "n_envs": n_envs}))
+        out = tmp_path / label
+        argv = ["train", "--config", str(path), "--out", str(out), "--no-progress"]
+        assert main(argv) == 0
+        runs[label] = out
+    err = capsys.readouterr().err
+    assert "n_envs: auto -> 64 roundabouts" in err and "cpu" in err
+    header = (runs["auto"] / "config.yaml").read_text().splitlines()[:2]
+    assert header[0].startswith("# n_envs: auto -> 64")
+    assert json.loads(header[1][2:])["n_envs"] == 64
+    assert load_ppo_config(runs["auto"] / "config.yaml") == load_ppo_config(
+        runs["64"] / "config.yaml"
+    )
+    assert_same_run(runs["auto"], runs["64"])

@@ -95,6 +95,29 @@ def test_result_has_the_documented_shape(result: dict[str, Any]) -> None:
 
 
 @pytest.mark.sumo
+def test_each_sumo_process_is_timed_for_a_second(result: dict[str, Any]) -> None:
+    """Repeats of the same simulated window until each process has timed at
+    least `SUMO_MIN_TIMED_S` of wall time; the spread over them is kept."""
+    from jaxround.apps.bench.sumo_timing import SUMO_MIN_TIMED_S
+
+    assert SUMO_MIN_TIMED_S >= 1.0 and result["sumo_min_timed_s"] >= 1.0
+    rows = [result["sumo"], *result["sumo_parallel"]["per_process"]]
+    for row in rows:
+        assert row["timed_wall_s"] >= SUMO_MIN_TIMED_S
+        assert row["repeats"] > 1  # a 5 s window takes far less than a second
+        spread = row["spread"]
+        assert spread["p10"] <= spread["median"] <= spread["p90"]
+        assert spread["relative"] >= 0
+        assert row["jax"]["env"] == "cpu"
+    assert result["sumo_parallel"]["min_timed_wall_s"] >= SUMO_MIN_TIMED_S
+    device = result["device"]
+    assert device["platform"] == "cpu" and device["kind"]
+    assert device["batches"] == [1, 16, 256, 1024, 4096]
+    assert device["training_n_envs"] == 64
+    assert "repeats of the window" in format_benchmark(result)
+
+
+@pytest.mark.sumo
 def test_throughputs_are_consistent(result: dict[str, Any]) -> None:
     sumo = result["sumo_vehicle_steps_per_s"]
     assert _positive(sumo)
@@ -193,6 +216,11 @@ def test_training_and_policy_rollouts_in_env_steps(result: dict[str, Any]) -> No
     )
     cpu = sum(row["cpu_s"] for row in loop["per_process"])
     assert loop["env_steps_per_cpu_s"] == pytest.approx(loop["processes"] * 10 / cpu)
+    # SUMO in the loop, too, repeats its window for at least a second
+    assert loop["min_timed_wall_s"] >= 1.0
+    for row in loop["per_process"]:
+        assert row["timed_wall_s"] >= 1.0 and row["repeats"] > 1
+        assert row["jax"]["env"] == "cpu"
     # an update is n_envs x n_steps env-steps; the rollout is a part of it
     assert ppo["env_steps_per_update"] == 4 * 8
     assert ppo["env_steps_per_s"] == pytest.approx(32 / ppo["s_per_update"])
@@ -284,7 +312,7 @@ def test_a_missing_policy_fails_before_running(tmp_path: Any) -> None:
 
 
 def test_measure_training_rejects_bad_numbers() -> None:
-    from jaxround.apps.bench_training import measure_training
+    from jaxround.apps.bench.training import measure_training
 
     cfg = load_ppo_config("ppo_milan").replace(**TINY_PPO)
     for kwargs in ({"updates": 0}, {"policy_batch": 0}, {"penetration": 1.5},

@@ -112,3 +112,40 @@ def test_other_roundabouts_run_in_parallel_processes(name: str) -> None:
         assert mean["collisions"] == 0 and mean["teleports"] == 0
         assert mean["all"]["mean_crossing_time_s"] > 0
         assert (mean["av"]["n_vehicles"] == 60) == (p == 0.5)
+
+
+def test_scenario_folders_take_the_network_from_the_cache(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """netconvert runs once per network: a second scenario folder of the same
+    network (another demand) copies the cached .net.xml, which its .sumocfg
+    names beside it."""
+    import subprocess
+
+    from jaxround.sumo_files import netconvert
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    calls = []
+    real_run = subprocess.run
+
+    def counting_run(cmd, *args, **kwargs):
+        calls.append(cmd[0])
+        return real_run(cmd, *args, **kwargs)
+
+    monkeypatch.setattr(netconvert.subprocess, "run", counting_run)
+    first = small_config("three_leg", n_vehicles=10, duration_s=30.0)
+    second = small_config("three_leg", n_vehicles=20, duration_s=60.0)
+    files = [
+        write_scenario(cfg, make_schedule(cfg), tmp_path / name)
+        for cfg, name in ((first, "a"), (second, "b"))
+    ]
+    assert len(calls) == 1 and "netconvert" in Path(calls[0]).name
+    cached = netconvert.network_file(first)
+    assert len(calls) == 1  # the JAX side's network is the same file
+    for f in files:
+        assert f.net.parent == f.sumocfg.parent
+        assert f.net.read_bytes() == cached.read_bytes()
+        assert f'<net-file value="{f.net.name}"/>' in f.sumocfg.read_text()
+        assert (f.net.parent / "three_leg.nod.xml").is_file()
+    run = run_schedule(first, make_schedule(first), workdir=tmp_path / "run")
+    assert run.records.arrived.sum() > 0

@@ -147,3 +147,21 @@ def test_no_module_is_over_400_lines() -> None:
         if (n := len(path.read_text().splitlines())) > MAX_LINES
     }
     assert not long, long
+
+
+def test_the_slot_sizing_does_not_import_the_environment_back() -> None:
+    """`jaxround.envs.roundabout` imports `slots`; `slots` measures through
+    the environment factory its caller gives, so no import circle."""
+    assert "jaxround.envs.slots" in imported("jaxround.envs.roundabout")
+    assert "jaxround.envs.roundabout" not in closure({"jaxround.envs.slots"})
+
+
+def test_sumo_processes_import_no_jax_at_the_top() -> None:
+    """`jaxround.sumo_files.processes` starts SUMO's workers: it reads JAX's
+    state only where JAX is imported already."""
+    tree = ast.parse(MODULES["jaxround.sumo_files.processes"].read_text())
+    top = [n for n in tree.body if isinstance(n, ast.Import | ast.ImportFrom)]
+    names = {a.name for n in top for a in n.names} | {
+        n.module for n in top if isinstance(n, ast.ImportFrom) and n.module
+    }
+    assert not any(name.split(".")[0] == "jax" for name in names)

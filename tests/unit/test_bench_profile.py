@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import pytest
 
-from jaxround.apps.bench_profile import (
+from jaxround.apps.bench.profile import (
     OTHER,
     PHASES,
     format_profile,

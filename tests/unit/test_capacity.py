@@ -66,21 +66,31 @@ def test_smallest_vtype_spacing(milan_net: Any) -> None:
     assert road_capacity(net, short) == int(np.ceil(net.lane_length / 6.0).sum())
 
 
+def builder(cfg: Any, net: Any) -> slot_sizing.EnvFactory:
+    """What `RoundaboutEnv` gives `resolve_slots`: its own kind, built."""
+    from jaxround.envs.roundabout import RoundaboutEnv
+
+    return lambda m, seconds: RoundaboutEnv(cfg, net, m, episode_s=seconds)
+
+
 def test_slots_given_then_config_then_traffic(milan_net: Any) -> None:
     cfg, net = milan_net
-    sizing = slot_sizing.traffic_slots(cfg, net)
-    assert slot_sizing.resolve_slots(None, cfg, net) == sizing.max_vehicles
+    sizing = slot_sizing.traffic_slots(cfg, net, builder(cfg, net))
+    assert (
+        slot_sizing.resolve_slots(None, cfg, net, builder(cfg, net))
+        == sizing.max_vehicles
+    )
     # Milan at its demand: far fewer vehicles than the road holds, a margin
     # above the most any measured step held
     assert sizing.road == 76 and 8 <= sizing.peak < sizing.max_vehicles <= 40
     assert sizing.max_vehicles == slot_sizing.slots_for_peak(sizing.peak, 76)
-    assert slot_sizing.resolve_slots("road", cfg, net) == 76
+    assert slot_sizing.resolve_slots("road", cfg, net, builder(cfg, net)) == 76
     capped = cfg.with_overrides(max_vehicles=40)
-    assert slot_sizing.resolve_slots(None, capped, net) == 40
-    assert slot_sizing.resolve_slots(12, capped, net) == 12
+    assert slot_sizing.resolve_slots(None, capped, net, builder(capped, net)) == 40
+    assert slot_sizing.resolve_slots(12, capped, net, builder(capped, net)) == 12
     for bad in (0, -3, 2.5, True, "many"):
         with pytest.raises(ValueError, match="max_vehicles"):
-            slot_sizing.resolve_slots(bad, cfg, net)
+            slot_sizing.resolve_slots(bad, cfg, net, builder(cfg, net))
 
 
 def test_slots_for_peak() -> None:
@@ -111,8 +121,8 @@ def test_sizing_cached_per_scenario(
         return real(*args)
 
     monkeypatch.setattr(slot_sizing, "peak_occupancy", counted)
-    first = slot_sizing.traffic_slots(cfg, net)
-    second = slot_sizing.traffic_slots(cfg, net)
+    first = slot_sizing.traffic_slots(cfg, net, builder(cfg, net))
+    second = slot_sizing.traffic_slots(cfg, net, builder(cfg, net))
     assert first == second and len(calls) == 1 and path.exists()
 
 

@@ -153,7 +153,7 @@ def cmd_bench(args: argparse.Namespace) -> None:
         raise UsageError("--policy, --train-config: not with --profile (no training)")
     cfg = load_config(args.config)
     if args.profile:
-        from jaxround.apps.bench_profile import (
+        from jaxround.apps.bench.profile import (
             DEFAULT_BATCH,
             format_profile,
             profile_step,

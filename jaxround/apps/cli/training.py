@@ -53,14 +53,16 @@ def evaluate_in_sumo(
 
 
 def cmd_run(args: argparse.Namespace) -> None:
-    from agents.common.config import load_ppo_config
+    from agents.common.config import PPOConfig, load_trainer_config_and_choice
+    from agents.common.device_batch import CPU_N_ENVS
     from jaxround.apps.pipeline import TRAIN_DIR, headline, main_job
 
     cfg = load_config(args.config)
-    train_cfg = load_ppo_config(args.train_config)
-    if args.quick:
+    train_cfg, choice = load_trainer_config_and_choice(PPOConfig, args.train_config)
+    if args.quick:  # as many updates as a CPU's quick run, whatever the batch
+        scale = 1 if choice is None else max(1, choice.n_envs // CPU_N_ENVS)
         train_cfg = train_cfg.replace(
-            total_env_steps=min(train_cfg.total_env_steps, QUICK_TRAIN_STEPS)
+            total_env_steps=min(train_cfg.total_env_steps, scale * QUICK_TRAIN_STEPS)
         )
     if args.total_steps is not None:
         train_cfg = train_cfg.replace(total_env_steps=args.total_steps)
@@ -74,9 +76,11 @@ def cmd_run(args: argparse.Namespace) -> None:
         if args.no_progress
         else (lambda msg: print(msg, file=sys.stderr))
     )
+    if choice is not None:
+        print(choice.describe(), file=sys.stderr)
     result = main_job(
         cfg, out, seeds, penetrations, train_cfg, workers=args.workers,
-        progress=not args.no_progress, say=say,
+        progress=not args.no_progress, say=say, device_choice=choice,
     )  # fmt: skip
     warn_outside_at_cap(result, "run")
     print(result["tables"])
@@ -89,7 +93,10 @@ def cmd_run(args: argparse.Namespace) -> None:
 
 def cmd_train(args: argparse.Namespace) -> None:
     from agents.common.compilation import enable_compilation_cache
-    from agents.common.config import load_trainer_config
+    from agents.common.config import (
+        load_trainer_config,
+        load_trainer_config_and_choice,
+    )
     from agents.run import (
         ALGORITHMS,
         RUN_FILES,
@@ -138,13 +145,18 @@ def cmd_train(args: argparse.Namespace) -> None:
         if args.out is None:
             raise UsageError("give --out DIR for a new run, or --resume DIR")
         algo = args.algo or "ppo"
-        cfg = load_trainer_config(ALGORITHMS[algo].config, args.config)
+        cfg, choice = load_trainer_config_and_choice(
+            ALGORITHMS[algo].config, args.config
+        )
         cfg = cfg.replace(**overrides) if overrides else cfg
         out = args.out
+        if choice is not None:
+            print(choice.describe(), file=sys.stderr)
         if primary:
             out = fresh_output_dir(args.out, args.force, RUN_FILES)
             clear_run(out)
-            (out / "config.yaml").write_text(cfg.to_yaml())
+            record = choice.as_comment() if choice is not None else ""
+            (out / "config.yaml").write_text(record + cfg.to_yaml())
     if args.num_processes > 1:  # the others wait for the folder
         from jax.experimental.multihost_utils import sync_global_devices
 
@@ -292,7 +304,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seeds", type=positive_int, default=2, help="number of seeds")
     p.add_argument(
         "--quick", action="store_true",
-        help=f"1 seed, 3 penetrations, {QUICK_TRAIN_STEPS:,} training steps",
+        help=f"1 seed, 3 penetrations, {QUICK_TRAIN_STEPS:,} training steps "
+        "(per 64 roundabouts of n_envs: auto)",
     )  # fmt: skip
     p.add_argument(
         "--train-config", default=None,

@@ -3,7 +3,7 @@
     result = profile_step(load_config("milan"))
     print(format_profile(result))
 
-The program profiled is the one `jaxround.apps.bench_jax` times: one jitted
+The program profiled is the one `jaxround.apps.bench.jax_timing` times: one jitted
 ``vmap`` over B roundabouts of a ``lax.scan`` of ``env.step_env``, idle
 actions. It is warmed up over the first ``sim_seconds`` of the demand, then
 one more window of ``sim_seconds`` runs under ``jax.profiler``, which records
@@ -39,7 +39,7 @@ from typing import Any
 
 import jax
 
-from jaxround.apps.bench_jax import batch_schedules, warmed_window
+from jaxround.apps.bench.jax_timing import batch_schedules, warmed_window
 from jaxround.envs.roundabout import make
 from jaxround.scenario.config import ScenarioConfig
 

@@ -6,30 +6,40 @@ step, with the options of `sumo_export.runner.run_schedule` (emission device
 on every vehicle, tripinfo and statistics output, junction collision
 checks). Not timed: writing the scenario files, netconvert,
 ``libsumo.start`` (reported as ``load_s``), the warm-up steps, and the
-runner's per-step Python work (queue sampling). Short windows are repeated
-from a saved state (``simulation.saveState`` / ``loadState``, not timed) and
-the median is reported.
+runner's per-step Python work (queue sampling).
+
+The window is repeated from a saved state (``simulation.saveState`` /
+``loadState``, not timed) until each process has timed at least
+`SUMO_MIN_TIMED_S` of wall time (``timed_wall_s``): a window of 60 steps
+takes a few milliseconds, too short a time for one figure on a shared
+machine. The median repeat is reported, and the spread over the repeats
+(``spread``: the 10th and 90th percentiles of the rate, and their distance
+from each other over the median). The processes are spawned with JAX on the
+CPU (`jaxround.sumo_files.processes`); each reports its JAX (``jax``).
 """
 
 from __future__ import annotations
 
-import multiprocessing
 import os
 import statistics
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
 from jaxround.scenario.config import ScenarioConfig
 from jaxround.scenario.schedule import Schedule as NumpySchedule
+from jaxround.sumo_files.processes import (
+    cpu_process_pool,
+    cpu_spawn_context,
+    jax_platform_report,
+)
 
 #: A timed window is repeated until the repeats add up to this many seconds
-#: (one SUMO window of 30 s takes about 10 ms) ...
-SUMO_MIN_TIMED_S = 0.5
-#: ... or this many repeats.
-SUMO_MAX_REPEATS = 25
+#: of wall time in each process (one SUMO window of 30 s takes about 10 ms) ...
+SUMO_MIN_TIMED_S = 1.0
+#: ... or this many repeats (a stop for windows with no vehicles).
+SUMO_MAX_REPEATS = 100_000
 
 
 def run_sumo_window(
@@ -43,8 +53,7 @@ def run_sumo_window(
         "load_s", "full_episode": {...}, "sumo_version"}``; "full_episode" is
         the whole run to the last arrival, for reference.
     """
-    ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=1, mp_context=ctx) as pool:
+    with cpu_process_pool(1) as pool:
         return pool.submit(_sumo_worker, cfg, schedule, steps, False, True).result()
 
 
@@ -64,11 +73,8 @@ def run_sumo_parallel(
         slowest process), ...}``.
     """
     n = len(schedules)
-    ctx = multiprocessing.get_context("spawn")
-    barrier = ctx.Barrier(n)  # reaches the workers as they start (not picklable)
-    with ProcessPoolExecutor(
-        max_workers=n, mp_context=ctx, initializer=_keep_barrier, initargs=(barrier,)
-    ) as pool:
+    barrier = cpu_spawn_context().Barrier(n)  # reaches the workers as they start
+    with cpu_process_pool(n, initializer=_keep_barrier, initargs=(barrier,)) as pool:
         futures = [pool.submit(_sumo_worker, cfg, s, steps, True) for s in schedules]
         rows = [f.result() for f in futures]
     counts = sum(r["vehicle_steps"] for r in rows)
@@ -76,12 +82,24 @@ def run_sumo_parallel(
     return {
         "processes": n,
         "vehicle_steps_per_s": sum(r["vehicle_steps_per_s"] for r in rows),
+        "min_timed_wall_s": min(r["timed_wall_s"] for r in rows),
         "vehicle_steps_per_cpu_s": counts / max(cpu, 1e-9),
         "vehicle_steps": counts,
         "mean_vehicles": counts / (n * steps),
         "wall_s": max(r["wall_s"] for r in rows),
         "per_process": [
-            {k: r[k] for k in ("vehicle_steps_per_s", "vehicle_steps", "wall_s")}
+            {
+                k: r[k]
+                for k in (
+                    "vehicle_steps_per_s",
+                    "vehicle_steps",
+                    "wall_s",
+                    "timed_wall_s",
+                    "repeats",
+                    "spread",
+                    "jax",
+                )
+            }
             for r in rows
         ],
     }
@@ -150,10 +168,13 @@ def _sumo_worker(
         finally:
             libsumo.close()
         version = libsumo.getVersion()[1]
-    rates = [c / w for c, w in zip(counts, walls, strict=True)]
+    rates = [c / max(w, 1e-12) for c, w in zip(counts, walls, strict=True)]
     wall, cpu = statistics.median(walls), max(statistics.median(cpus), 1e-9)
     return {
         "vehicle_steps_per_s": statistics.median(rates),
+        "timed_wall_s": sum(walls),
+        "spread": rate_spread(rates),
+        "jax": jax_platform_report(),
         "steps_per_s": steps / wall,
         "vehicle_steps_per_cpu_s": counts[0] / cpu,
         "vehicle_steps": counts[0],
@@ -166,6 +187,19 @@ def _sumo_worker(
         **rest,
         "sumo_version": version,
     }
+
+
+def rate_spread(rates: list[float]) -> dict[str, float]:
+    """``{"p10", "median", "p90", "relative"}`` of the repeats' rates;
+    relative: (p90 - p10) / median."""
+    if len(rates) < 2:
+        p10 = p90 = rates[0]
+    else:
+        deciles = statistics.quantiles(rates, n=10, method="inclusive")
+        p10, p90 = deciles[0], deciles[-1]
+    median = statistics.median(rates)
+    return {"p10": p10, "median": median, "p90": p90,
+            "relative": (p90 - p10) / max(median, 1e-12)}  # fmt: skip
 
 
 def _repeat_window(

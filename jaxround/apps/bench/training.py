@@ -18,11 +18,11 @@ figures, taken one after the other in this one call:
   (`agents.common.evaluation.switched_policy`, as `jaxround evaluate` runs
   it) and the environment's step, ``jit(vmap(scan))`` over B roundabouts of
   the full scenario at one AV share, timed over [S, 2S) after an untimed
-  warm-up over [0, S) (`jaxround.apps.bench_policy_windows`).
+  warm-up over [0, S) (`jaxround.apps.bench.policy_windows`).
 - **SUMO in the loop**: the same policy driving SUMO's AVs through the
   libsumo controller (`sumo_export.controller.PolicyController`), one
   process per usable core at once, the same window
-  (`jaxround.apps.bench_policy_windows`); env-steps/s summed over processes.
+  (`jaxround.apps.bench.policy_windows`); env-steps/s summed over processes.
 
 Without a trained policy (``policy=None``) a freshly initialised network of
 the training config is exported to a temporary folder: its actions are
@@ -53,11 +53,11 @@ from agents.common.export import (
 )
 from agents.ppo.train import Trainer
 from agents.run.algorithms import compiled_trainer
-from jaxround.apps.bench_policy_windows import (
+from jaxround.apps.bench.policy_windows import (
     measure_jax_policy,
     measure_sumo_in_the_loop,
 )
-from jaxround.apps.bench_sumo import usable_cpus
+from jaxround.apps.bench.sumo_timing import usable_cpus
 from jaxround.scenario.config import ConfigError, ScenarioConfig
 
 #: Updates timed after the compiling one and the warm-up ones.

@@ -113,7 +113,7 @@ def format_benchmark(result: dict[str, Any]) -> str:
 
 
 def format_training(t: dict[str, Any]) -> list[str]:
-    """The lines of `jaxround.apps.bench_training.measure_training`'s result:
+    """The lines of `jaxround.apps.bench.training.measure_training`'s result:
     PPO, the JAX policy rollout and SUMO in the loop in env-steps/s."""
     ppo, jp, loop = t["ppo"], t["jax_policy"], t["sumo_in_the_loop"]
     rollout_ratio = ppo["rollout_env_steps_per_s"] / loop["env_steps_per_s"]
@@ -179,6 +179,17 @@ def _ratio_line(result: dict[str, Any], best: dict[str, Any]) -> str:
             f"; against SUMO in {parallel['processes']} processes "
             f"{result['best_ratio_vs_sumo_parallel']:.2f}x"
         )
+    spread = result.get("sumo", {}).get("spread")
+    if spread:
+        sumo = result["sumo"]
+        text += (
+            f" SUMO in one process: {sumo['repeats']} repeats of the window in "
+            f"{sumo['timed_wall_s']:.2f} s, {spread['p10']:,.0f} to "
+            f"{spread['p90']:,.0f} vehicle-steps/s (10th to 90th percentile)"
+        )
+    device = result.get("device")
+    if device:
+        text += f". Device: {device['count']} x {device['kind']} ({device['platform']})"
     return text + "."
 
 
@@ -211,7 +222,7 @@ def code_version() -> dict[str, Any]:
     """jaxround's version and, in a git checkout, its commit and whether the
     package sources differ from it (read-only git commands)."""
     info: dict[str, Any] = {"jaxround": _package_version("jaxround")}
-    root = Path(__file__).resolve().parent.parent
+    root = Path(__file__).resolve().parents[3]  # the checkout (or site-packages)
     git = ["git", "-C", str(root)]
     try:
         head = subprocess.run(

@@ -13,10 +13,12 @@ over the steps (SUMO: ``libsumo.vehicle.getIDCount()``; JAX: occupied slots,
 
 SUMO runs in one libsumo process, and then in one process per usable core
 at once, each on its own schedule (the peer a user with this machine would
-run): `jaxround.apps.bench_sumo` says what is timed. JAX runs B roundabouts in one
-jitted call: `jaxround.apps.bench_jax`. The ratios are taken per wall second (the
-headline), per CPU second (XLA uses every core, SUMO one), and against SUMO
-in one process per core.
+run), each timing the window again and again for at least a second of wall
+time: `jaxround.apps.bench.sumo_timing` says what is timed. JAX runs B
+roundabouts in one jitted call (`jaxround.apps.bench.jax_timing`), B up to
+what the device holds (`jaxround.apps.bench.device`). The ratios are taken
+per wall second (the headline), per CPU second (XLA uses every core, SUMO
+one), and against SUMO in one process per core.
 
 Roundabout i of a batch runs ``make_schedule(cfg, seed + i)``: roundabout 0
 runs the very schedule SUMO runs, the others the same demand with other
@@ -26,12 +28,12 @@ Beside the timings: XLA's count of floating-point operations of one
 roundabout-step (the cost analysis of a compiled one-step program), and a
 yardstick timed in the same run, the bare IDM ring of `jaxround.apps.bare_ring` at
 the best batch: what the machine gives the simplest car-following step with
-the same slots. `jaxround.apps.bench_report` formats the tables.
+the same slots. `jaxround.apps.bench.report` formats the tables.
 
 With a PPO config (``training=``, the CLI's default), the run ends with the
 speed a user of the environment gets, in env-steps/s: PPO training, and an
 exported policy driving the AVs in JAX and in SUMO in the loop
-(`jaxround.apps.bench_training`).
+(`jaxround.apps.bench.training`).
 """
 
 from __future__ import annotations
@@ -46,9 +48,12 @@ import jax
 from tqdm import tqdm
 
 from agents.common.config import PPOConfig
+from agents.common.device_batch import this_device
 from agents.common.export import load_policy
 from jaxround.apps.bare_ring import measure_bare_ring
-from jaxround.apps.bench_jax import (
+from jaxround.apps.bench.device import device_batches, device_record
+from jaxround.apps.bench.device import policy_batch as policy_batch_of
+from jaxround.apps.bench.jax_timing import (
     DETAIL_KEYS,
     MAX_REPEATS,
     MIN_TIMED_S,
@@ -57,27 +62,26 @@ from jaxround.apps.bench_jax import (
     measure_jax,
     step_flops,
 )
-from jaxround.apps.bench_report import (
+from jaxround.apps.bench.report import (
     code_version,
-    format_benchmark,
     load_average,
     machine_info,
 )
-from jaxround.apps.bench_sumo import run_sumo_parallel, run_sumo_window, usable_cpus
-from jaxround.apps.bench_training import (
-    DEFAULT_POLICY_BATCH,
-    DEFAULT_POLICY_SECONDS,
-    measure_training,
+from jaxround.apps.bench.sumo_timing import (
+    SUMO_MIN_TIMED_S,
+    run_sumo_parallel,
+    run_sumo_window,
+    usable_cpus,
 )
+from jaxround.apps.bench.training import DEFAULT_POLICY_SECONDS, measure_training
 from jaxround.core.params import EnvParams
 from jaxround.core.state import Schedule
 from jaxround.envs.roundabout import RoundaboutEnv, make
 from jaxround.scenario.config import ScenarioConfig
 from jaxround.scenario.schedule import make_schedule
 
-__all__ = ["batch_schedules", "format_benchmark", "run_benchmark", "usable_cpus"]
+__all__ = ["run_benchmark"]
 
-DEFAULT_BATCHES = (1, 16, 256, 1024, 4096)
 DEFAULT_SLOT_SIZES = (32, 64, 128, 256)
 #: Length of the timed window (and of the warm-up before it), simulated seconds.
 #: 30 s keeps the run's peak memory (batch 4096) under 2 GB and the whole run at
@@ -98,7 +102,7 @@ WHAT_IS_TIMED = (
 
 def run_benchmark(
     cfg: ScenarioConfig,
-    batches: Sequence[int] = DEFAULT_BATCHES,
+    batches: Sequence[int] | None = None,
     sim_seconds: float = DEFAULT_SIM_SECONDS,
     max_vehicles: int | None = None,
     slot_sizes: Sequence[int] = DEFAULT_SLOT_SIZES,
@@ -109,7 +113,7 @@ def run_benchmark(
     sumo_processes: int | None = None,
     training: PPOConfig | None = None,
     policy: str | Path | None = None,
-    policy_batch: int = DEFAULT_POLICY_BATCH,
+    policy_batch: int | None = None,
     policy_seconds: float = DEFAULT_POLICY_SECONDS,
 ) -> dict[str, Any]:
     """Measure SUMO and the JAX environment on one scenario, in this one call.
@@ -120,7 +124,8 @@ def run_benchmark(
 
     Args:
         cfg: the scenario.
-        batches: numbers B of roundabouts stepped together by one jitted call.
+        batches: numbers B of roundabouts stepped together by one jitted call;
+            None: the device's (`jaxround.apps.bench.device.device_batches`).
         sim_seconds: simulated seconds of the warm-up and of the timed window
             (rounded to whole steps); the window is [S, 2S) of the episode.
         max_vehicles: vehicle slots M of the batch runs; None: the config's
@@ -132,11 +137,12 @@ def run_benchmark(
         sumo_processes: SUMO processes run at once for the parallel peer
             (and for SUMO in the loop); default one per usable core.
         training: a PPO config: also time its training, and a policy of it
-            driving the AVs in JAX and in SUMO (`jaxround.apps.bench_training`,
+            driving the AVs in JAX and in SUMO (`jaxround.apps.bench.training`,
             last in the run); None: not.
         policy: the exported policy of those rollouts (with `training`);
             None: a freshly initialised network of the config.
-        policy_batch: roundabouts of the JAX policy rollout (with `training`).
+        policy_batch: roundabouts of the JAX policy rollout (with `training`);
+            None: the device's (`jaxround.apps.bench.device.policy_batch`).
         policy_seconds: warm-up and timed window of the policy rollouts,
             simulated seconds (with `training`).
 
@@ -149,12 +155,19 @@ def run_benchmark(
         "best_ratio_vs_sumo_parallel": x, "bare_ring": {...}, "slots":
         [{"max_vehicles", "us_per_step_per_roundabout", "us_per_vehicle_step",
         ...}, ...], "machine": {...}, "sim_seconds": x, "max_vehicles": M,
-        "jax_slot_overflow": x, ...}``; "steps_per_s" counts roundabout-steps
+        "jax_slot_overflow": x, "device": {...}, ...}``; "sumo" and each of
+        "sumo_parallel"'s "per_process" have "timed_wall_s" (at least
+        `SUMO_MIN_TIMED_S`) and "spread"; "steps_per_s" counts roundabout-steps
         (B per batched step); "jax_slot_overflow" is the largest batch's
         vehicle-steps of slot overflow at M (it runs every smaller batch's
         schedules); with `training`, "training" holds
-        `jaxround.apps.bench_training.measure_training`'s result.
+        `jaxround.apps.bench.training.measure_training`'s result.
     """
+    device = this_device()
+    if batches is None:
+        batches = device_batches(device)
+    if policy_batch is None:
+        policy_batch = policy_batch_of(device)
     batches = [_positive_int(b, "batches") for b in batches]
     slot_sizes = [_positive_int(m, "slot_sizes") for m in slot_sizes]
     if max_vehicles is not None:
@@ -249,6 +262,7 @@ def run_benchmark(
         "best_batch": best["batch"],
         "bare_ring": bare,
         "slots": slot_rows,
+        "device": device_record(device),
         "machine": {
             **machine_info(sumo.get("sumo_version")),
             "load_average_before": load_before,
@@ -264,6 +278,7 @@ def run_benchmark(
         "slot_batch": slot_batch,
         "seed": seed,
         "sumo": sumo,
+        "sumo_min_timed_s": SUMO_MIN_TIMED_S,
         "code": code,
         "what_is_timed": WHAT_IS_TIMED,
         **({"training": trained} if trained is not None else {}),
