@@ -24,12 +24,7 @@ from typing import Any, ClassVar, TypeVar
 
 import yaml
 
-from agents.common.device_batch import (
-    AUTO,
-    DeviceChoice,
-    size_for_device,
-    this_device,
-)
+from agents.common.device_batch import AUTO, DeviceChoice, size_for_device, this_device
 from jaxround.scenario.config import (
     ACTIONS,
     OBSERVERS,
