@@ -60,7 +60,6 @@ def add_conflicts(
     vid: jax.Array,
     found: surrogate_safety.FollowingConflicts,
     conflicts_step: jax.Array,
-    n_schedule: int,
 ) -> EpisodeStats:
     """The step's conflicts, TTC and DRAC into each vehicle's totals, (N,);
     the encounters kept for the next step.
@@ -68,9 +67,9 @@ def add_conflicts(
     Args:
         vid: int (M,) each slot's vehicle at the start of the step (-1: none).
         found, conflicts_step: `step_conflicts`' results.
-        n_schedule: N.
     """
     follows = found.encounter_leader >= 0
+    n_schedule = stats.conflicts.shape[-1]
     follower = jnp.where(follows, vid, n_schedule)  # out of range: dropped
     followed = jnp.where(follows, found.encounter_leader, n_schedule)
     vehicle = jnp.where(vid >= 0, vid, n_schedule)

@@ -297,9 +297,7 @@ class RoundaboutEnv:
         # 2. arrivals leave their slots
         vid = jnp.where(arrived, state.vid, self.n_schedule)  # out of range: dropped
         arrival_s = state.arrival_s.at[vid].set(t + self.dt, mode="drop")
-        stats = conflicts.add_conflicts(
-            state.stats, state.vid, safety, conflicts_step, self.n_schedule
-        )
+        stats = conflicts.add_conflicts(state.stats, state.vid, safety, conflicts_step)
         stats = stats.replace(
             trip_co2_mg=stats.trip_co2_mg.at[vid].set(co2, mode="drop"),
             trip_fuel_mg=stats.trip_fuel_mg.at[vid].set(fuel, mode="drop"),
