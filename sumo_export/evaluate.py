@@ -51,7 +51,7 @@ def summarise_runs(
     Returns:
         ``{"per_seed": [...], "mean": {"all": M, "hv": M, "av": M,
         "collisions": n, "emergency_brakings": n, "teleports": n,
-        "score_scale": "sweep" | "run", "not_arrived": n}}``; the counters
+        "score_scale": "sweep" | "joint" | "run", "not_arrived": n}}``; the counters
         in "mean" are totals over the seeds.
     """
     per_seed = []
@@ -71,7 +71,7 @@ def summarise_runs(
     for key in SAFETY_KEYS:
         mean[key] = int(sum(e[key] for e in per_seed))
     mean["not_arrived"] = int(sum(e["all"]["n_not_arrived"] for e in per_seed))
-    mean["score_scale"] = "run" if scale is None else "sweep"
+    mean["score_scale"] = "run" if scale is None else scale.over
     reports = [r.controller_report for r in runs if r.controller_report is not None]
     if reports:
         mean["controller"] = controller_summary(reports)
@@ -81,7 +81,7 @@ def summarise_runs(
 def compare_drivers(
     cfg: ScenarioConfig,
     runs: dict[str, dict[float, list[SumoRun]]],
-    score_scale: str = "sweep",
+    score_scale: str | ScoreScale = "sweep",
 ) -> dict[str, dict[float, dict[str, Any]]]:
     """`summarise_runs` of several drivers on the same schedules, compared over
     the same vehicles: each (penetration, seed)'s means are over the vehicles
@@ -90,7 +90,8 @@ def compare_drivers(
     Args:
         runs: ``{driver: {penetration: [SumoRun per seed]}}``, the same
             penetrations and seeds for every driver.
-        score_scale: "sweep" (Eq. 5 over every run given) or "run".
+        score_scale: "sweep" (Eq. 5 over every run given), "run", or the
+            bounds themselves (e.g. over JAX's runs and these together).
 
     Returns:
         ``{driver: {penetration: summarise_runs(...)}}``.
@@ -98,7 +99,7 @@ def compare_drivers(
     Raises:
         ValueError: an unknown `score_scale`.
     """
-    if score_scale not in SCORE_SCALES:
+    if not isinstance(score_scale, ScoreScale) and score_scale not in SCORE_SCALES:
         raise ValueError(f"score_scale {score_scale!r}, expected one of {SCORE_SCALES}")
     drivers = list(runs)
     first = runs[drivers[0]]
@@ -110,7 +111,10 @@ def compare_drivers(
         for p in first
     }
     every = [r.records for by_p in runs.values() for rs in by_p.values() for r in rs]
-    scale = sweep_scale(every) if score_scale == "sweep" else None
+    if isinstance(score_scale, ScoreScale):
+        scale: ScoreScale | None = score_scale
+    else:
+        scale = sweep_scale(every) if score_scale == "sweep" else None
     return {
         d: {
             p: summarise_runs(cfg, rs, compared=compared[p], scale=scale)

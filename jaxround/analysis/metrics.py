@@ -32,15 +32,23 @@ SCORE_SCALES = ("sweep", "run")
 
 @dataclass(frozen=True)
 class ScoreScale:
-    """Eq. 5's (min, max) of fuel and of CO2 per vehicle, g."""
+    """Eq. 5's (min, max) of fuel and of CO2 per vehicle, g.
+
+    Attributes:
+        over: the runs the bounds were taken over: "sweep" (every run of a
+            table) or "joint" (every run of JAX and SUMO together).
+    """
 
     fuel_g: tuple[float, float]
     co2_g: tuple[float, float]
+    over: str = "sweep"
 
 
-def sweep_scale(runs: Iterable[VehicleRecords]) -> ScoreScale | None:
+def sweep_scale(
+    runs: Iterable[VehicleRecords], over: str = "sweep"
+) -> ScoreScale | None:
     """Eq. 5's minimum and maximum over the arrived vehicles of every run
-    (None if none arrived)."""
+    (None if none arrived); `over` names those runs (`ScoreScale.over`)."""
     fuel, co2 = [], []
     for records in runs:
         fuel.append(records.fuel_g[records.arrived & np.isfinite(records.fuel_g)])
@@ -51,6 +59,7 @@ def sweep_scale(runs: Iterable[VehicleRecords]) -> ScoreScale | None:
     return ScoreScale(
         fuel_g=(float(fuel_all.min()), float(fuel_all.max())),
         co2_g=(float(co2_all.min()), float(co2_all.max())),
+        over=over,
     )
 
 

@@ -11,12 +11,16 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 PANELS = (
-    ("emission_score", "emission score (Eq. 5{})"),
-    ("consumption_score", "consumption score (Eq. 5{})"),
+    ("emission_score", "emission score\n(Eq. 5{})"),
+    ("consumption_score", "consumption score\n(Eq. 5{})"),
     ("mean_crossing_time_s", "mean crossing time (s)"),
 )
 #: How the score panels name Eq. 5's scale.
-SCALE_LABEL = {"sweep": ", one scale over the sweep", "run": ", each run its own"}
+SCALE_LABEL = {
+    "sweep": ", one scale over the sweep",
+    "joint": ", one scale over JAX and SUMO",
+    "run": ", each run its own",
+}
 CLASS_STYLE = {"av": ("tab:blue", "AVs"), "hv": ("tab:orange", "HVs")}
 SIM_STYLE = {"sumo": ("-", "o"), "jax": ("--", "s")}
 
@@ -34,10 +38,11 @@ def plot_sweep(
             simulator "sumo" and/or "jax".
         path: the PNG to write.
         title: figure title.
-        score_scale: Eq. 5's scale of the scores ("sweep" or "run"), named on
-            the score panels.
+        score_scale: Eq. 5's scale of the scores ("sweep", "joint" or
+            "run"), named on the score panels. JAX beside SUMO is comparable
+            on "joint" only (`jaxround.analysis.metrics.sweep_scale`).
     """
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8), constrained_layout=True)
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4.2), constrained_layout=True)
     for ax, (key, label) in zip(axes, PANELS, strict=True):
         for sim, by_p in results.items():
             line, marker = SIM_STYLE.get(sim, ("-", "."))

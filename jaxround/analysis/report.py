@@ -34,6 +34,7 @@ ABSOLUTE_COLUMNS = (
 #: What the Table 4 title says of Eq. 5's scale.
 SCALE_NOTE = {
     "sweep": "min and max over every run of the table (one scale)",
+    "joint": "min and max over every run of JAX and SUMO, every driver (one scale)",
     "run": "min and max over each run's own vehicles (rows on different scales)",
 }
 

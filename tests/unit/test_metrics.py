@@ -128,3 +128,47 @@ def test_one_score_scale_over_a_sweep() -> None:
     assert own["hv"]["emission_score"] == pytest.approx(0.25)
     assert own["av"]["emission_score"] == pytest.approx(1.0)
     assert sweep_scale([]) is None
+
+
+def human_drivers(co2_g: list[float]) -> VehicleRecords:
+    """Five human drivers, all arrived, with these grams of CO2."""
+    n = len(co2_g)
+    co2 = np.asarray(co2_g)
+    return VehicleRecords(
+        is_av=np.zeros(n, bool),
+        origin=np.zeros(n, int),
+        scheduled_depart_s=np.arange(n, dtype=float),
+        depart_s=np.arange(n, dtype=float),
+        arrival_s=np.arange(n, dtype=float) + 20.0,
+        co2_g=co2,
+        fuel_g=co2 / 3.0,
+        queue_mean_veh=np.zeros(4),
+        queue_max_veh=np.zeros(4),
+    )
+
+
+def test_one_scale_over_both_simulators_puts_scores_where_grams_are() -> None:
+    # 0% AVs: CO2 per vehicle 52.0 g in JAX, 52.4 g in SUMO (0.8% apart),
+    # but SUMO's extremes lie wider (one vehicle 20 g, one 72 g)
+    runs = {
+        "jax": human_drivers([40.0, 50.0, 52.0, 54.0, 64.0]),
+        "sumo": human_drivers([20.0, 56.0, 57.0, 57.0, 72.0]),
+    }
+    grams = {"jax": 52.0, "sumo": 52.4}
+
+    def scores(scale_of: dict[str, object]) -> dict[str, float]:
+        out = {}
+        for sim, run in runs.items():
+            m = class_metrics(run, 3600.0, scale=scale_of[sim])
+            assert m["hv"]["co2_g_per_veh"] == pytest.approx(grams[sim])
+            out[sim] = m["hv"]["emission_score"]
+        return out
+
+    # each simulator on its own scale: 0.50 against 0.62, 24% apart
+    own = scores({sim: sweep_scale([run]) for sim, run in runs.items()})
+    assert abs(own["sumo"] / own["jax"] - 1) > 0.2
+    # one scale over the runs of both: as close as the grams
+    joint = sweep_scale(runs.values(), over="joint")
+    assert joint.over == "joint" and joint.co2_g == (20.0, 72.0)
+    both = scores({sim: joint for sim in runs})
+    assert abs(both["sumo"] / both["jax"] - 1) < 0.02
