@@ -20,7 +20,7 @@ from jaxround.scenario.config import load_config
 
 #: First seed of the search's schedules, and of the evaluation's.
 SEARCH_SEED, EVAL_SEED = 200, 100
-RESULTS = ("search.json", "search.png")
+RESULTS = ("search.json", "search.png", "best_constant.json")
 
 
 def positive_float(text: str) -> float:
@@ -51,11 +51,32 @@ def shares(text: str) -> tuple[float, ...]:
     return values
 
 
+def search_command(args: argparse.Namespace) -> str:
+    """The ``jaxround search`` command of these options, every one spelled
+    out (the output folder as DIR), so that it regenerates the result."""
+    parts = [
+        "jaxround search --out DIR", f"--config {args.config or 'milan'}",
+        f"--penetration {100 * args.penetration:g}", f"--window-s {args.window_s:g}",
+        f"--demand-scale {args.demand_scale:g}",
+        f"--search-seeds {args.search_seeds}", f"--eval-seeds {args.eval_seeds}",
+        f"--population {args.population}", f"--generations {args.generations}",
+        f"--state-generations {args.state_generations or args.generations}",
+        f"--time-weight {args.time_weight:g}", f"--co2-weight {args.co2_weight:g}",
+        "--charge-exit" if args.charge_exit else "--no-charge-exit",
+    ]  # fmt: skip
+    if args.origin_share is not None:
+        parts.append("--origin-share " + ",".join(f"{x:g}" for x in args.origin_share))
+    if args.max_vehicles is not None:
+        parts.append(f"--max-vehicles {args.max_vehicles}")
+    return " ".join(parts)
+
+
 def cmd_search(args: argparse.Namespace) -> None:
     from jaxround.analysis.search_plot import plot_front
     from jaxround.analysis.setting_search import Objective, search_scenario
     from jaxround.apps.search import (
         SearchBudget,
+        best_constant_file,
         front_table,
         run_search,
         summary,
@@ -92,6 +113,8 @@ def cmd_search(args: argparse.Namespace) -> None:
             args.workers,
         )  # fmt: skip
     (out / "search.json").write_text(json.dumps(result, indent=1))
+    best = best_constant_file(result, search_command(args))
+    (out / "best_constant.json").write_text(json.dumps(best, indent=1) + "\n")
     plot_front(result, out / "search.png")
     print("front of the constants scored (search seeds):")
     print(front_table(result))
@@ -104,7 +127,11 @@ def cmd_search(args: argparse.Namespace) -> None:
             f"{100 * s['paired']['co2_g']['rel_diff']:+.2f}%, objective "
             f"{100 * s['objective']['rel_diff']:+.2f}%"
         )
-    print(f"wrote {out / 'search.json'} and {out / 'search.png'}")
+    print(
+        f"wrote {out / 'search.json'}, {out / 'search.png'} and "
+        f"{out / 'best_constant.json'} (copy it to configs/best_constant/"
+        f"{result['scenario']}.json for the main job)"
+    )
 
 
 def conflict_limit(text: str) -> str | float | None:

@@ -1,0 +1,70 @@
+"""The best constant's versioned file: what it holds, how it is read and
+applied, and that it is what `jaxround search` wrote."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import pytest
+
+from jaxround.apps.cli.search import search_command
+from jaxround.apps.search import best_constant_file
+from jaxround.scenario.best_constant import (
+    BestConstant,
+    builtin_path,
+    load_best_constant,
+)
+from jaxround.scenario.config import ConfigError, load_config
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_milan_file_is_what_its_search_wrote() -> None:
+    # docs/search_1800s/p100.json is the search's result; the file is the
+    # search's own best_constant.json of it, with the command that ran it
+    result = json.loads((ROOT / "docs/search_1800s/p100.json").read_text())
+    saved = json.loads(builtin_path("milan").read_text())
+    assert best_constant_file(result, saved["command"]) == saved
+    args = argparse.Namespace(
+        config="milan", penetration=1.0, window_s=1800.0, demand_scale=1.0,
+        search_seeds=8, eval_seeds=20, population=24, generations=8,
+        state_generations=None, time_weight=1.0, co2_weight=0.5,
+        charge_exit=True, origin_share=None, max_vehicles=None,
+    )  # fmt: skip
+    assert saved["command"] == search_command(args)
+
+
+def test_loaded_setting_goes_into_the_av_vtype_only() -> None:
+    constant = load_best_constant("milan")
+    assert constant.source == "configs/best_constant/milan.json"
+    cfg = load_config("milan")
+    tuned = constant.config_for(cfg)
+    for name, value in constant.vtype.items():
+        assert getattr(tuned.drivers.av, name) == pytest.approx(value)
+    assert tuned.drivers.hv == cfg.drivers.hv
+    assert constant.front["points"] and constant.objective["description"]
+
+
+def test_any_vtype_number_and_a_cruise_speed() -> None:
+    constant = BestConstant(
+        scenario="milan", setting={"min_gap": 2.0, "cruise_mps": 9.5},
+        objective={"description": "x"}, command="jaxround search --out DIR",
+    )  # fmt: skip
+    assert constant.vtype == {"min_gap": 2.0}
+    assert constant.controller_spec == "cruise:9.5"
+    # min_gap is one both classes share in JAX: refused for the AVs alone
+    with pytest.raises(ConfigError):
+        constant.config_for(load_config("milan"))
+
+
+def test_bad_files_are_refused(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="unknown setting"):
+        BestConstant("milan", {"courage": 1.0}, {}, "")
+    with pytest.raises(ConfigError, match="no such file"):
+        load_best_constant(tmp_path / "missing.json")
+    path = tmp_path / "b.json"
+    path.write_text(json.dumps({"scenario": "milan", "setting": {"tau": 0.7}}))
+    with pytest.raises(ConfigError, match="missing"):
+        load_best_constant(path)
