@@ -12,6 +12,7 @@ vmapped, jitted batch; a per-run flag picks the driver.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +28,7 @@ from agents.common.export import (
 )
 from jaxround.analysis.metrics import (
     SCORE_SCALES,
+    ScoreScale,
     arrived_in_all,
     class_metrics,
     mean_over_runs,
@@ -34,9 +36,11 @@ from jaxround.analysis.metrics import (
 )
 from jaxround.core.capacity import road_capacity
 from jaxround.core.state import EnvState
+from jaxround.envs.constant_setting import constant_setting_runs
 from jaxround.envs.rollout import NO_COMMAND, Policy, run_until_left, vehicle_records
 from jaxround.envs.roundabout import RoundaboutEnv, make
 from jaxround.envs.slots import redo_on_overflow
+from jaxround.scenario.best_constant import BestConstant
 from jaxround.scenario.config import DRAIN_S, ScenarioConfig, config_from_dict
 from jaxround.scenario.schedule import make_schedule
 
@@ -74,56 +78,41 @@ def switched_policy(
     return act
 
 
-def evaluate_policy(
+@dataclass
+class DriverRuns:
+    """Every run of `run_drivers`, before any metric.
+
+    Attributes:
+        records: ``{driver: {penetration: [VehicleRecords per seed]}}``.
+        stats: the same of each run's final `EpisodeStats`.
+        max_vehicles: slots M of the reported policy runs; tried: every M.
+    """
+
+    cfg: ScenarioConfig
+    policy: str
+    layout: PolicyLayout
+    penetrations: list[float]
+    seeds: list[int]
+    cap_s: float
+    max_vehicles: int
+    tried: list[int]
+    records: dict[str, dict[float, list[Any]]]
+    stats: dict[str, dict[float, list[Any]]]
+
+
+def run_drivers(
     policy_path: str | Path,
     cfg: ScenarioConfig,
     penetrations: Sequence[float],
     seeds: Sequence[int],
     max_vehicles: int | str | None = None,
-    keep_records: bool = False,
     drain_s: float = DRAIN_S,
-    score_scale: str = "sweep",
-) -> dict[str, Any]:
-    """Run the policy and the uncontrolled baseline on every schedule.
-
-    The two are compared over the same vehicles: each schedule's means are
-    over the vehicles that arrived in both runs of it (the others counted
-    per run: ``n_not_arrived``, "outside_at_cap").
-
-    Args:
-        policy_path: the exported policy (``.npz``, ``.json``, stem or folder).
-        cfg: the scenario (full demand); its observer is set to the policy's.
-        penetrations: AV shares.
-        seeds: schedule seeds.
-        max_vehicles: vehicle slots M; None: the config's, else what the
-            traffic needs (`jaxround.envs.slots`); runs whose slots overflow
-            are redone with more (`redo_on_overflow`).
-        keep_records: also return each run's `VehicleRecords` under
-            ``"records": {driver: {penetration: [per seed]}}`` (not JSON).
-        drain_s: simulated seconds after the demand horizon a run may go on
-            for its last vehicles (the cap is the horizon plus this).
-        score_scale: Eq. 5's min and max over every run here ("sweep") or
-            each run's own ("run").
-
-    Returns:
-        ``{"scenario", "seeds", "policy": path, "layout": {...},
-        "max_vehicles": M of the reported runs, "max_vehicles_tried": every
-        M run, "jax_slot_overflow": vehicle-steps over all runs (0 unless
-        the road itself overflowed),
-        "cap_s": the longest a run went on, "jax_not_arrived": vehicles
-        still in or waiting at the cap, over all runs, "outside_at_cap":
-        [{"driver", "penetration", "seed", "not_arrived"}] of the runs that
-        left any, "score_scale",
-        "results": {driver: {penetration: metrics}}}`` where metrics are
-        `jaxround.analysis.metrics.class_metrics` averaged over seeds, plus
-        ``collisions`` and ``slot_overflow`` (means over seeds).
-
-    Raises:
-        ValueError: the policy reads other observations than the environment
-            gives, or an unknown `score_scale`.
-    """
-    if score_scale not in SCORE_SCALES:
-        raise ValueError(f"score_scale {score_scale!r}, expected one of {SCORE_SCALES}")
+    constant: BestConstant | None = None,
+) -> DriverRuns:
+    """The policy and the uncontrolled baseline on every schedule in one
+    batch, and the constant setting (driver "best_constant") on the same
+    schedules in another (`jaxround.envs.constant_setting`) when given.
+    Arguments as `evaluate_policy`'s."""
     arrays, layout = load_policy(policy_path)
     check_scenario(layout, cfg)
     cfg = with_observer(cfg, layout.observer, layout.action)
@@ -166,62 +155,162 @@ def evaluate_policy(
         max_vehicles=env.max_vehicles, road=road_capacity(env.network, cfg),
         what="evaluate (JAX)",
     )  # fmt: skip
-    records: dict[str, dict[float, list[Any]]] = {d: {} for d in DRIVERS}
-    finals = []
-    for i, (driver, p, _) in enumerate(runs):
-        state = jax.tree.map(lambda x, i=i: x[i], states)
-        records[driver].setdefault(p, []).append(vehicle_records(env, state))
-        finals.append(state.stats)
-    # the policy and the baseline over the same vehicles: those arrived in both
+    batches = [(env, states, runs)]
+    if constant is not None:
+        jobs = [("best_constant", p, s) for p in penetrations for s in seeds]
+        env_c, states_c, _ = constant_setting_runs(
+            cfg, constant, [numpy_schedules[(p, s)] for _, p, s in jobs],
+            max_vehicles=env.max_vehicles, cap_s=cap_s,
+        )  # fmt: skip
+        batches.append((env_c, states_c, jobs))
+    records: dict[str, dict[float, list[Any]]] = {}
+    stats: dict[str, dict[float, list[Any]]] = {}
+    for batch_env, batch_states, batch_runs in batches:
+        for i, (driver, p, _) in enumerate(batch_runs):
+            state = jax.tree.map(lambda x, i=i: x[i], batch_states)
+            rec = vehicle_records(batch_env, state)
+            records.setdefault(driver, {}).setdefault(p, []).append(rec)
+            stats.setdefault(driver, {}).setdefault(p, []).append(state.stats)
+    return DriverRuns(
+        cfg=cfg, policy=str(policy_path), layout=layout,
+        penetrations=list(penetrations), seeds=list(seeds), cap_s=cap_s,
+        max_vehicles=env.max_vehicles, tried=tried, records=records, stats=stats,
+    )  # fmt: skip
+
+
+def summarise_drivers(
+    runs: DriverRuns, score_scale: str | ScoreScale = "sweep"
+) -> dict[str, Any]:
+    """The metrics of every driver, over the same vehicles: each schedule's
+    means are over the vehicles that arrived in every driver's run of it.
+
+    Args:
+        score_scale: Eq. 5's min and max over every run here ("sweep"), each
+            run's own ("run"), or the bounds themselves (`ScoreScale`, e.g.
+            over JAX's and SUMO's runs together).
+
+    Returns:
+        `evaluate_policy`'s result, without "records".
+    """
+    if not isinstance(score_scale, ScoreScale) and score_scale not in SCORE_SCALES:
+        raise ValueError(f"score_scale {score_scale!r}, expected one of {SCORE_SCALES}")
+    records, drivers = runs.records, list(runs.records)
     compared = {
-        (p, k): arrived_in_all(records[d][p][k] for d in DRIVERS)
-        for p in penetrations
-        for k in range(len(seeds))
+        (p, k): arrived_in_all(records[d][p][k] for d in drivers)
+        for p in runs.penetrations
+        for k in range(len(runs.seeds))
     }
     every = [r for by_p in records.values() for rs in by_p.values() for r in rs]
-    scale = sweep_scale(every) if score_scale == "sweep" else None
+    if isinstance(score_scale, ScoreScale):
+        scale: ScoreScale | None = score_scale
+    else:
+        scale = sweep_scale(every) if score_scale == "sweep" else None
     per_run: dict[tuple[str, float], list[dict[str, Any]]] = {}
     overflow = not_arrived = 0
     outside: list[dict[str, Any]] = []
-    horizon = cfg.demand.duration_s
-    for i, (driver, p, seed) in enumerate(runs):
-        k = list(seeds).index(seed)
-        rec = records[driver][p][k]
-        m = class_metrics(rec, horizon, compared=compared[(p, k)], scale=scale)
-        m["collisions"] = int(finals[i].collisions)
-        m["slot_overflow"] = int(finals[i].overflow)
-        overflow += m["slot_overflow"]
-        left = m["all"]["n_not_arrived"]
-        not_arrived += left
-        if left:
-            outside.append(
-                {"driver": driver, "penetration": p, "seed": seed, "not_arrived": left}
-            )
-        per_run.setdefault((driver, p), []).append(m)
-    result = {
-        "scenario": cfg.name,
-        "seeds": list(seeds),
-        "policy": str(policy_path),
+    horizon = runs.cfg.demand.duration_s
+    for driver in drivers:
+        for p in runs.penetrations:
+            for k, seed in enumerate(runs.seeds):
+                final = runs.stats[driver][p][k]
+                m = class_metrics(
+                    records[driver][p][k], horizon, compared=compared[(p, k)],
+                    scale=scale,
+                )  # fmt: skip
+                m["collisions"] = int(final.collisions)
+                m["slot_overflow"] = int(final.overflow)
+                overflow += m["slot_overflow"]
+                left = m["all"]["n_not_arrived"]
+                not_arrived += left
+                if left:
+                    outside.append({"driver": driver, "penetration": p,
+                                    "seed": seed, "not_arrived": left})  # fmt: skip
+                per_run.setdefault((driver, p), []).append(m)
+    layout = runs.layout
+    return {
+        "scenario": runs.cfg.name,
+        "seeds": runs.seeds,
+        "policy": runs.policy,
         "layout": {
             "observer": layout.observer,
             "obs_size": layout.obs_size,
             "hidden": list(layout.hidden),
             "centralised": layout.centralised,
         },
-        "max_vehicles": env.max_vehicles,
-        "max_vehicles_tried": tried,
+        "max_vehicles": runs.max_vehicles,
+        "max_vehicles_tried": runs.tried,
         "jax_slot_overflow": overflow,
-        "cap_s": cap_s,
+        "cap_s": runs.cap_s,
         "jax_not_arrived": not_arrived,
         "outside_at_cap": outside,
-        "score_scale": score_scale,
+        "score_scale": "run" if scale is None else scale.over,
         "results": {
-            d: {p: mean_over_runs(per_run[(d, p)]) for p in penetrations}
-            for d in DRIVERS
+            d: {p: mean_over_runs(per_run[(d, p)]) for p in runs.penetrations}
+            for d in drivers
         },
     }
+
+
+def evaluate_policy(
+    policy_path: str | Path,
+    cfg: ScenarioConfig,
+    penetrations: Sequence[float],
+    seeds: Sequence[int],
+    max_vehicles: int | str | None = None,
+    keep_records: bool = False,
+    drain_s: float = DRAIN_S,
+    score_scale: str = "sweep",
+    constant: BestConstant | None = None,
+) -> dict[str, Any]:
+    """Run the policy and the uncontrolled baseline on every schedule.
+
+    The two are compared over the same vehicles: each schedule's means are
+    over the vehicles that arrived in both runs of it (the others counted
+    per run: ``n_not_arrived``, "outside_at_cap").
+
+    Args:
+        policy_path: the exported policy (``.npz``, ``.json``, stem or folder).
+        cfg: the scenario (full demand); its observer is set to the policy's.
+        penetrations: AV shares.
+        seeds: schedule seeds.
+        max_vehicles: vehicle slots M; None: the config's, else what the
+            traffic needs (`jaxround.envs.slots`); runs whose slots overflow
+            are redone with more (`redo_on_overflow`).
+        keep_records: also return each run's `VehicleRecords` under
+            ``"records": {driver: {penetration: [per seed]}}`` (not JSON).
+        drain_s: simulated seconds after the demand horizon a run may go on
+            for its last vehicles (the cap is the horizon plus this).
+        score_scale: Eq. 5's min and max over every run here ("sweep") or
+            each run's own ("run").
+        constant: a constant AV setting run on the same schedules as a third
+            driver, "best_constant" (the means then over the vehicles
+            arrived in all three).
+
+    Returns:
+        ``{"scenario", "seeds", "policy": path, "layout": {...},
+        "max_vehicles": M of the reported runs, "max_vehicles_tried": every
+        M run, "jax_slot_overflow": vehicle-steps over all runs (0 unless
+        the road itself overflowed),
+        "cap_s": the longest a run went on, "jax_not_arrived": vehicles
+        still in or waiting at the cap, over all runs, "outside_at_cap":
+        [{"driver", "penetration", "seed", "not_arrived"}] of the runs that
+        left any, "score_scale",
+        "results": {driver: {penetration: metrics}}}`` where metrics are
+        `jaxround.analysis.metrics.class_metrics` averaged over seeds, plus
+        ``collisions`` and ``slot_overflow`` (means over seeds).
+
+    Raises:
+        ValueError: the policy reads other observations than the environment
+            gives, or an unknown `score_scale`.
+    """
+    if score_scale not in SCORE_SCALES:
+        raise ValueError(f"score_scale {score_scale!r}, expected one of {SCORE_SCALES}")
+    runs = run_drivers(
+        policy_path, cfg, penetrations, seeds, max_vehicles, drain_s, constant
+    )
+    result = summarise_drivers(runs, score_scale)
     if keep_records:
-        result["records"] = records
+        result["records"] = runs.records
     return result
 
 
@@ -269,7 +358,10 @@ def summary_rows(results: dict[str, dict[float, dict[str, Any]]]) -> list[list[s
 __all__ = [
     "DRIVERS",
     "SUMMARY_COLUMNS",
+    "DriverRuns",
     "evaluate_policy",
+    "run_drivers",
+    "summarise_drivers",
     "summary_rows",
     "switched_policy",
     "with_observer",
