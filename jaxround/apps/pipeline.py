@@ -12,7 +12,10 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from jaxround.analysis.front_plot import plot_main_front
 from jaxround.analysis.report import percent_label, write_json, write_tables
+from jaxround.analysis.results_tables import write_results_tables
+from jaxround.scenario.best_constant import BestConstant
 from jaxround.scenario.config import DRAIN_S, ScenarioConfig
 
 #: Training folder inside the main job's output folder.
@@ -28,6 +31,8 @@ def by_label(per_penetration: dict[float, Any]) -> dict[str, Any]:
 
 #: What the policy does differently, drawn into the evaluation folder.
 BEHAVIOUR_PNG = "behaviour.png"
+#: Crossing time against CO2 of each driver, and the search's front.
+FRONT_PNG = "front.png"
 #: Penetrations at which the policy is compared with uncontrolled AVs.
 COMPARED_PENETRATIONS = (0.5, 1.0)
 
@@ -43,10 +48,16 @@ def evaluate_everywhere(
     say: Callable[[str], None] = print,
     step: str = "",
     drain_s: float = DRAIN_S,
+    constant: BestConstant | None = None,
 ) -> dict[str, Any]:
-    """A policy over penetrations, beside uncontrolled AVs of the same vType,
-    in JAX and in SUMO, on the same schedules; tables, figure and JSON into
-    `out`.
+    """A policy over penetrations, beside uncontrolled AVs of the same vType
+    and, when given, the best constant setting, in JAX and in SUMO, on the
+    same schedules; tables, figures and JSON into `out`.
+
+    Every mean is over the vehicles that arrived in every run of its
+    schedule (all drivers, both simulators' own); Eq. 5 takes one min and
+    max over every run of both simulators, so JAX's scores and SUMO's fall
+    where their grams fall.
 
     Returns:
         ``{"scenario", "seeds", "policy", "sumo": {label: M},
@@ -58,46 +69,74 @@ def evaluate_everywhere(
         {...}, "tables"}`` with
         M as `jaxround.analysis.metrics.class_metrics` (means over seeds) plus the
         safety counters, and "comparison" as `compare_with_uncontrolled`;
-        also written to ``out/evaluation.json``.
+        with a `constant` also "best_constant" (its file's content),
+        "sumo_best_constant", "jax_best_constant" and
+        "comparison_best_constant" (`compare_best_constant`). Also written
+        to ``out/evaluation.json``.
     """
-    from agents.common.evaluation import evaluate_policy
+    from agents.common.evaluation import run_drivers, summarise_drivers
+    from jaxround.analysis.metrics import sweep_scale
+    from jaxround.envs.constant_setting import constant_config
     from sumo_export.evaluate import compare_drivers, policy_controller, sumo_runs
     from sumo_export.policy_report import write_policy_report
+    from sumo_export.scripted import ScriptedControllerFactory
 
     n = f"{len(penetrations)} penetrations x {len(seeds)} seed(s)"
     factory = policy_controller(cfg, policy)  # a bad policy fails before any run
-    say(f"{step}JAX: policy and uncontrolled AVs, {n}")
-    jax_eval = evaluate_policy(
-        policy, cfg, penetrations, seeds, keep_records=True, drain_s=drain_s
+    drivers = "policy, uncontrolled AVs" + (", best constant" if constant else "")
+    say(f"{step}JAX: {drivers}, {n}")
+    jax_runs = run_drivers(
+        policy, cfg, penetrations, seeds, drain_s=drain_s, constant=constant
     )
-    jax_policy = jax_eval["results"]["policy"]
-    scale = jax_eval["score_scale"]
-    write_tables(jax_policy, out, "jax_policy", scale)
-    write_tables(jax_eval["results"]["uncontrolled"], out, "jax_uncontrolled", scale)
-    say(f"{step}SUMO: the policy through libsumo, then uncontrolled AVs, {n}")
+    say(f"{step}SUMO: the policy through libsumo, then {drivers[8:]}, {n}")
     runs = {
         "policy": sumo_runs(cfg, penetrations, seeds, workers, progress, factory,
                             desc="SUMO, policy", drain_s=drain_s),
         "uncontrolled": sumo_runs(cfg, penetrations, seeds, workers, progress,
                                   desc="SUMO, uncontrolled AVs", drain_s=drain_s),
     }  # fmt: skip
-    # the same vehicles on both sides; Eq. 5 on one scale over every run
-    summaries = compare_drivers(cfg, runs, score_scale="sweep")
-    sweep, plain = summaries["policy"], summaries["uncontrolled"]
-    write_tables({p: r["mean"] for p, r in plain.items()}, out, "sumo_uncontrolled")
-    tables = write_policy_report(cfg, sweep, out, policy, jax_results=jax_policy)
+    if constant is not None:
+        spec = constant.controller_spec
+        runs["best_constant"] = sumo_runs(
+            constant_config(cfg, constant), penetrations, seeds, workers, progress,
+            None if spec is None else ScriptedControllerFactory(spec),
+            desc="SUMO, best constant", drain_s=drain_s,
+        )  # fmt: skip
     sumo_records = {
         d: {p: [r.records for r in rs] for p, rs in by_p.items()}
         for d, by_p in runs.items()
     }
+    # Eq. 5 on one scale over every run of both simulators
+    every = [
+        r
+        for by_driver in (jax_runs.records, sumo_records)
+        for by_p in by_driver.values()
+        for rs in by_p.values()
+        for r in rs
+    ]
+    scale = sweep_scale(every, over="joint")
+    jax_eval = summarise_drivers(jax_runs, scale)
+    jax_results = jax_eval["results"]
+    # the same vehicles on both sides
+    summaries = compare_drivers(cfg, runs, score_scale=scale)
+    means = {
+        d: {p: r["mean"] for p, r in by_p.items()} for d, by_p in summaries.items()
+    }
+    for driver, by_p in jax_results.items():  # policy, uncontrolled, best_constant
+        write_tables(by_p, out, f"jax_{driver}", "joint")
+        if driver != "policy":  # the policy's in SUMO: write_policy_report's
+            write_tables(means[driver], out, f"sumo_{driver}")
+    tables = write_policy_report(
+        cfg, summaries["policy"], out, policy, jax_results=jax_results["policy"]
+    )
     result = {
         "scenario": cfg.name,
         "seeds": list(seeds),
         "policy": str(policy),
-        "sumo": by_label({p: r["mean"] for p, r in sweep.items()}),
-        "sumo_uncontrolled": by_label({p: r["mean"] for p, r in plain.items()}),
-        "jax": by_label(jax_policy),
-        "jax_uncontrolled": by_label(jax_eval["results"]["uncontrolled"]),
+        "sumo": by_label(means["policy"]),
+        "sumo_uncontrolled": by_label(means["uncontrolled"]),
+        "jax": by_label(jax_results["policy"]),
+        "jax_uncontrolled": by_label(jax_results["uncontrolled"]),
         "max_vehicles": jax_eval["max_vehicles"],
         "jax_slot_overflow": jax_eval["jax_slot_overflow"],
         "cap_s": jax_eval["cap_s"],
@@ -109,11 +148,21 @@ def evaluate_everywhere(
             for r in rs
         ),
         "outside_at_cap": outside_at_cap(jax_eval, sumo_records, seeds),
+        "score_scale": "joint",
         "comparison": compare_with_uncontrolled(
-            {"sumo": sumo_records, "jax": jax_eval["records"]}
+            {"sumo": sumo_records, "jax": jax_runs.records}
         ),
         "tables": tables,
     }
+    if constant is not None:
+        result["best_constant"] = {**constant.to_dict(), "source": constant.source}
+        result["sumo_best_constant"] = by_label(means["best_constant"])
+        result["jax_best_constant"] = by_label(jax_results["best_constant"])
+        result["comparison_best_constant"] = compare_best_constant(
+            {"sumo": sumo_records, "jax": jax_runs.records}
+        )
+    write_results_tables(result, out)
+    plot_main_front(result, out / FRONT_PNG)
     from agents.common.behaviour import plot_behaviour, policy_behaviour
 
     behaviour = policy_behaviour(policy, cfg, penetration=1.0, seed=seeds[0])
@@ -143,20 +192,22 @@ def outside_at_cap(
     return out
 
 
-def compare_with_uncontrolled(
+def paired_drivers(
     records: dict[str, dict[str, dict[float, list[Any]]]],
+    driver: str,
+    baseline: str,
 ) -> dict[str, Any]:
-    """Policy against uncontrolled AVs, paired on the same schedules.
+    """`driver` minus `baseline`, paired on the same schedules, at
+    `COMPARED_PENETRATIONS`.
 
     Args:
-        records: ``{sim: {"policy" | "uncontrolled": {penetration: [records
-            per seed]}}}``.
+        records: ``{sim: {driver: {penetration: [records per seed]}}}``.
 
     Returns:
         ``{sim: {label: {"all" | "hv" | "av": compare.paired_difference}},
-        "sumo_to_jax_gain": {label: ratio}}`` at `COMPARED_PENETRATIONS`; the
-        ratio is the SUMO difference in mean crossing time of all vehicles
-        over the JAX one (None where JAX shows none).
+        "sumo_to_jax_gain": {label: ratio}}``; the ratio is the SUMO
+        difference in mean crossing time of all vehicles over the JAX one
+        (None where JAX shows none).
     """
     from jaxround.analysis.compare import paired_difference
 
@@ -164,9 +215,9 @@ def compare_with_uncontrolled(
     for sim, by_driver in records.items():
         out[sim] = {}
         for p in COMPARED_PENETRATIONS:
-            if p not in by_driver["policy"]:
+            if p not in by_driver[driver]:
                 continue
-            pol, base = by_driver["policy"][p], by_driver["uncontrolled"][p]
+            pol, base = by_driver[driver][p], by_driver[baseline][p]
             out[sim][percent_label(p)] = {
                 c: paired_difference(pol, base, c) for c in ("all", "hv", "av")
             }
@@ -180,6 +231,26 @@ def compare_with_uncontrolled(
     return out
 
 
+def compare_with_uncontrolled(
+    records: dict[str, dict[str, dict[float, list[Any]]]],
+) -> dict[str, Any]:
+    """Policy against uncontrolled AVs (`paired_drivers`)."""
+    return paired_drivers(records, "policy", "uncontrolled")
+
+
+def compare_best_constant(
+    records: dict[str, dict[str, dict[float, list[Any]]]],
+) -> dict[str, Any]:
+    """``{"policy_vs_best_constant": ..., "best_constant_vs_uncontrolled":
+    ...}``, each as `paired_drivers`."""
+    return {
+        "policy_vs_best_constant": paired_drivers(records, "policy", "best_constant"),
+        "best_constant_vs_uncontrolled": paired_drivers(
+            records, "best_constant", "uncontrolled"
+        ),
+    }
+
+
 def main_job(
     cfg: ScenarioConfig,
     out: Path,
@@ -190,6 +261,7 @@ def main_job(
     progress: bool = True,
     say: Callable[[str], None] = print,
     device_choice: Any = None,
+    constant: BestConstant | None = None,
 ) -> dict[str, Any]:
     """Scenario files, PPO training, export, evaluation in JAX and SUMO.
 
@@ -201,6 +273,8 @@ def main_job(
         train_config: the `agents.common.config.PPOConfig` to train.
         device_choice: what ``n_envs: auto`` chose for it
             (`agents.common.device_batch.DeviceChoice`), kept in the results.
+        constant: the best constant setting evaluated beside the policy
+            (`jaxround.scenario.best_constant`); None: none.
 
     Returns:
         The ``results.json`` object: ``{"sumo": {label: M}, "jax": {label:
@@ -227,8 +301,9 @@ def main_job(
     trained = train_to_dir(train_config, train_dir, progress=progress, say=say)
     policy = Path(trained["policy"])
     result = evaluate_everywhere(
-        cfg, policy, penetrations, seeds, out, workers, progress, say, "[3-4/4] "
-    )
+        cfg, policy, penetrations, seeds, out, workers, progress, say, "[3-4/4] ",
+        constant=constant,
+    )  # fmt: skip
     result["training"] = {
         "updates": trained["updates"],
         "env_steps": trained["updates"] * train_config.env_steps_per_update,
@@ -244,10 +319,12 @@ def main_job(
 
 
 def headline(result: dict[str, Any]) -> str:
-    """Crossing times at 0%, 50% and 100% AVs in both simulators, and the
-    policy against uncontrolled AVs, in words."""
+    """Crossing times at 0%, 50% and 100% AVs in both simulators; the policy
+    against uncontrolled AVs, and with a best constant, the policy against it
+    and it against uncontrolled AVs, in words."""
     lines = []
-    for sim in ("sumo", "sumo_uncontrolled", "jax", "jax_uncontrolled"):
+    for sim in ("sumo", "sumo_best_constant", "sumo_uncontrolled", "jax",
+                "jax_best_constant", "jax_uncontrolled"):  # fmt: skip
         runs = result.get(sim, {})
         parts = []
         for label, cls in (("0", "hv"), ("50", "hv"), ("50", "av"), ("100", "av")):
@@ -257,16 +334,20 @@ def headline(result: dict[str, Any]) -> str:
                 parts.append(f"{cls.upper()}s at {label}%: {t:.2f} s")
         if parts:
             lines.append(f"{sim}: " + ", ".join(parts))
-    for sim, by_label in result.get("comparison", {}).items():
-        if sim == "sumo_to_jax_gain":
-            continue
-        for label, by_class in by_label.items():
-            t, c = by_class["all"]["crossing_time_s"], by_class["all"]["co2_g"]
-            if t is None or c is None:
+    pairs = {"policy minus uncontrolled": result.get("comparison", {})}
+    for key, pair in result.get("comparison_best_constant", {}).items():
+        pairs[key.replace("_vs_", " minus ").replace("_", " ")] = pair
+    for what, comparison in pairs.items():
+        for sim, by_label in comparison.items():
+            if sim == "sumo_to_jax_gain":
                 continue
-            lines.append(
-                f"{sim}, {label}% AVs, policy minus uncontrolled: crossing time "
-                f"{t['diff']:+.2f} s ({100 * t['rel_diff']:+.1f}%), CO2 "
-                f"{c['diff']:+.2f} g/veh ({100 * c['rel_diff']:+.1f}%)"
-            )
+            for label, by_class in by_label.items():
+                t, c = by_class["all"]["crossing_time_s"], by_class["all"]["co2_g"]
+                if t is None or c is None:
+                    continue
+                lines.append(
+                    f"{sim}, {label}% AVs, {what}: crossing time "
+                    f"{t['diff']:+.2f} s ({100 * t['rel_diff']:+.1f}%), CO2 "
+                    f"{c['diff']:+.2f} g/veh ({100 * c['rel_diff']:+.1f}%)"
+                )
     return "\n".join(lines)

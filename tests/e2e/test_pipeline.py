@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -43,6 +44,7 @@ def finished_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = root / "run"
     argv = ["run", "--config", str(root / "small.yaml"), "--out", str(out)]
     argv += ["--train-config", str(root / "ppo.yaml"), "--quick", "--no-progress"]
+    argv += ["--best-constant", "milan"]  # the small scenario has none of its own
     assert main(argv) == 0
     return out
 
@@ -68,14 +70,38 @@ def test_main_job_writes_every_result(finished_run: Path) -> None:
         ]
         assert pair["diff"] == pytest.approx(mean_policy - mean_plain, abs=1e-6)
     assert "100" in results["comparison"]["sumo_to_jax_gain"]
+    # the best constant beside them, on the same vehicles, in both simulators
+    assert results["best_constant"]["source"] == "configs/best_constant/milan.json"
+    for sim in ("sumo", "jax"):
+        best = results[sim + "_best_constant"]
+        assert set(best) == {"0", "50", "100"}
+        assert best["100"]["all"]["n_arrived"] == 60
+        for key in ("policy_vs_best_constant", "best_constant_vs_uncontrolled"):
+            pair = results["comparison_best_constant"][key][sim]["100"]["all"]
+            assert pair["crossing_time_s"]["n_vehicles"] == 60
+        # no AVs: the constant plays no part
+        assert best["0"]["all"]["mean_crossing_time_s"] == pytest.approx(
+            results[sim]["0"]["all"]["mean_crossing_time_s"]
+        )
     assert results["training"]["updates"] == 2
     # the JAX evaluation's slots: what the traffic needs, none overflowed
     assert results["max_vehicles"] < 76 and results["jax_slot_overflow"] == 0
     assert results["jax_not_arrived"] == 0 and results["cap_s"] > 0
     assert results["sumo_not_arrived"] == 0 and results["outside_at_cap"] == []
-    # Table 4 on one scale over every run compared, and saying so
-    assert "one scale" in (finished_run / "sumo_policy_table4.md").read_text()
-    assert "one scale" in (finished_run / "jax_policy_table4.md").read_text()
+    # Table 4 on one scale over every run of both simulators, and saying so
+    for name in ("sumo_policy_table4.md", "jax_policy_table4.md"):
+        assert "every run of JAX and SUMO" in (finished_run / name).read_text()
+    # one min and max: every run's score is the same line of its grams
+    assert results["score_scale"] == results["sumo"]["0"]["score_scale"] == "joint"
+    points = [
+        (m["all"]["co2_g_per_veh"], m["all"]["emission_score"])
+        for sim in ("sumo", "jax")
+        for suffix in ("", "_uncontrolled", "_best_constant")
+        for m in results[sim + suffix].values()
+    ]
+    co2, score = np.array(points).T
+    slope, intercept = np.polyfit(co2, score, 1)
+    assert np.abs(slope * co2 + intercept - score).max() < 1e-6
     for name in (
         "train/policy.npz",
         "train/policy.json",
@@ -86,6 +112,12 @@ def test_main_job_writes_every_result(finished_run: Path) -> None:
         "sumo_policy.png",
         "jax_policy_table3.md",
         "sumo_uncontrolled_table3.md",
+        "sumo_best_constant_table3.md",
+        "jax_best_constant_table3.md",
+        "beside.md",
+        "paired.md",
+        "readme_tables.md",
+        "front.png",
         "behaviour.png",
         "evaluation.json",
         "scenario/milan_small.sumocfg",

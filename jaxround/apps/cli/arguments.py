@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxround.core.capacity import overflow_warning
+from jaxround.scenario.best_constant import BestConstant
 from jaxround.scenario.config import DRAIN_S, ScenarioConfig
 
 
@@ -209,3 +210,29 @@ def warn_slot_overflow(result: dict[str, Any], what: str) -> None:
     )
     if text:
         print(text, file=sys.stderr)
+
+
+def best_constant_option(p: argparse.ArgumentParser) -> None:
+    """--best-constant: the constant AV setting evaluated beside a policy."""
+    p.add_argument(
+        "--best-constant", default=None, metavar="FILE|NAME|none",
+        help="the best constant AV setting evaluated beside the policy: a file "
+        "or a scenario's name (default: the scenario's own "
+        "configs/best_constant/<scenario>.json, if it has one; none: skip it)",
+    )  # fmt: skip
+
+
+def best_constant_of(source: str | None, cfg: ScenarioConfig) -> BestConstant | None:
+    """The best constant of `--best-constant` (a file or name; None: the
+    scenario's own, if any; "none": none), checked against the scenario."""
+    from jaxround.scenario.best_constant import builtin_path, load_best_constant
+    from jaxround.scenario.config import ConfigError
+
+    if source == "none" or (source is None and builtin_path(cfg.name) is None):
+        return None
+    try:
+        constant = load_best_constant(cfg.name if source is None else source)
+        constant.config_for(cfg)
+    except ConfigError as err:
+        raise UsageError(f"--best-constant: {err}") from None
+    return constant

@@ -9,6 +9,8 @@ from pathlib import Path
 from jaxround.analysis.report import percent_label
 from jaxround.apps.cli.arguments import (
     UsageError,
+    best_constant_of,
+    best_constant_option,
     config_option,
     drain_option,
     fresh_output_dir,
@@ -58,6 +60,7 @@ def cmd_run(args: argparse.Namespace) -> None:
     from jaxround.apps.pipeline import TRAIN_DIR, headline, main_job
 
     cfg = load_config(args.config)
+    constant = best_constant_of(args.best_constant, cfg)
     train_cfg, choice = load_trainer_config_and_choice(PPOConfig, args.train_config)
     if args.quick:  # as many updates as a CPU's quick run, whatever the batch
         scale = 1 if choice is None else max(1, choice.n_envs // CPU_N_ENVS)
@@ -78,9 +81,12 @@ def cmd_run(args: argparse.Namespace) -> None:
     )
     if choice is not None:
         print(choice.describe(), file=sys.stderr)
+    if constant is None:
+        say(f"no best constant setting for {cfg.name}: evaluated without it")
     result = main_job(
         cfg, out, seeds, penetrations, train_cfg, workers=args.workers,
         progress=not args.no_progress, say=say, device_choice=choice,
+        constant=constant,
     )  # fmt: skip
     warn_outside_at_cap(result, "run")
     print(result["tables"])
@@ -315,6 +321,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
         "--total-steps", type=positive_int, default=None,
         help="training env steps (overrides the PPO config)",
     )  # fmt: skip
+    best_constant_option(p)
     workers_option(p)
     p.add_argument("--force", action="store_true", help="overwrite an earlier run")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")

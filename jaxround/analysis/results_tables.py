@@ -1,0 +1,191 @@
+"""The main job's summary tables, from its ``results.json`` alone.
+
+The main job (`jaxround.apps.pipeline`) writes these beside its other
+tables, and `jaxround.apps.readme_tables` prints them for the README, so a
+README's figures are what the code prints from a results file:
+
+- Table 3 of the policy in SUMO (`report.table_rows`);
+- the drivers side by side (`beside_rows`): the policy, the best constant
+  setting and uncontrolled AVs, in SUMO and JAX, mean crossing time and CO2
+  per vehicle at 0%, 50% and 100% AVs, and the human drivers at 50%;
+- the paired differences (`paired_rows`): policy minus uncontrolled, policy
+  minus best constant, best constant minus uncontrolled, with 95% intervals
+  over the seeds (`jaxround.analysis.compare`).
+
+Rows of a driver the results lack (no best constant) are left out.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from jaxround.analysis.report import (
+    TABLE3_COLUMNS,
+    csv_table,
+    markdown_table,
+    table_rows,
+)
+
+SIMULATORS = {"sumo": "SUMO", "jax": "JAX"}
+#: Result key suffix of each driver and its name in the tables.
+DRIVERS = {"": "policy", "_best_constant": "best constant", "_uncontrolled": (
+    "uncontrolled AVs")}  # fmt: skip
+#: Penetration labels of the side-by-side table; HVs at the middle one.
+BESIDE_AT = ("0", "50", "100")
+HV_AT = "50"
+BESIDE_COLUMNS = ("", "0% AVs", "50% AVs", "100% AVs", "HVs at 50%")
+#: (where in results.json, name): each paired difference.
+PAIRS = (
+    (("comparison",), "policy - uncontrolled AVs"),
+    (("comparison_best_constant", "policy_vs_best_constant"),
+     "policy - best constant"),
+    (("comparison_best_constant", "best_constant_vs_uncontrolled"),
+     "best constant - uncontrolled AVs"),
+)  # fmt: skip
+PAIRED_COLUMNS = (
+    "",
+    "%AVs",
+    "crossing time",
+    "95% interval (seeds)",
+    "CO2",
+    "95% interval (seeds)",
+)
+
+
+def by_share(per_label: dict[str, Any]) -> dict[float, Any]:
+    """``{"10": M}`` -> ``{0.1: M}``."""
+    return {float(label) / 100.0: m for label, m in per_label.items()}
+
+
+def beside_rows(result: dict[str, Any]) -> list[list[str]]:
+    """Rows of `BESIDE_COLUMNS`: per simulator, each driver present."""
+    rows = []
+    for sim, sim_name in SIMULATORS.items():
+        for suffix, driver in DRIVERS.items():
+            runs = result.get(sim + suffix)
+            if not runs:
+                continue
+            row = [f"{sim_name}, {driver}"]
+            for label in BESIDE_AT:
+                everyone = runs.get(label, {}).get("all", {})
+                t, c = (
+                    everyone.get("mean_crossing_time_s"),
+                    everyone.get("co2_g_per_veh"),
+                )
+                row.append("-" if t is None or c is None else f"{t:.2f} s / {c:.1f} g")
+            hv = runs.get(HV_AT, {}).get("hv", {}).get("mean_crossing_time_s")
+            row.append("-" if hv is None else f"{hv:.2f} s")
+            rows.append(row)
+    return rows
+
+
+def _pair(result: dict[str, Any], where: tuple[str, ...]) -> dict[str, Any] | None:
+    node: Any = result
+    for key in where:
+        node = node.get(key) if isinstance(node, dict) else None
+    return node
+
+
+def _difference(d: dict[str, Any] | None, unit: str) -> tuple[str, str]:
+    """("-3.43 s (-18.9%)", "[-20.1, -17.6]%") of a paired difference."""
+    if d is None:
+        return "-", "-"
+    text = f"{d['diff']:+.2f} {unit}"
+    if d.get("rel_diff") is not None:
+        text += f" ({100 * d['rel_diff']:+.1f}%)"
+    ci, base = d.get("ci95_seeds"), d.get("baseline")
+    if ci is None or not base:
+        return text, "-"
+    return text, f"[{100 * ci[0] / base:+.1f}, {100 * ci[1] / base:+.1f}]%"
+
+
+def paired_rows(result: dict[str, Any]) -> list[list[str]]:
+    """Rows of `PAIRED_COLUMNS`: per simulator, pair and penetration, the
+    mean difference of all vehicles' crossing time and CO2."""
+    rows = []
+    for sim, sim_name in SIMULATORS.items():
+        for where, name in PAIRS:
+            pair = _pair(result, where)
+            for label, by_class in sorted(
+                ((pair or {}).get(sim) or {}).items(), key=lambda kv: float(kv[0])
+            ):
+                every = by_class["all"]
+                t, t_ci = _difference(every.get("crossing_time_s"), "s")
+                c, c_ci = _difference(every.get("co2_g"), "g")
+                rows.append([f"{sim_name}, {name}", label, t, t_ci, c, c_ci])
+    return rows
+
+
+def table3_markdown(result: dict[str, Any], key: str = "sumo") -> str:
+    """Table 3 (mean crossing time per class) of ``result[key]``."""
+    return markdown_table(TABLE3_COLUMNS, table_rows(by_share(result[key]))["table3"])
+
+
+def safety_line(result: dict[str, Any]) -> str:
+    """Collisions and teleports in SUMO over every run, and SUMO's gain over
+    uncontrolled AVs as a share of JAX's, in a sentence."""
+    counts = {"collisions": 0, "teleports": 0}
+    for suffix in DRIVERS:
+        for m in (result.get("sumo" + suffix) or {}).values():
+            for key in counts:
+                counts[key] += int(m.get(key) or 0)
+    gains = (result.get("comparison") or {}).get("sumo_to_jax_gain") or {}
+    shares = ", ".join(
+        f"{100 * g:.0f}% at {label}% AVs"
+        for label, g in sorted(gains.items(), key=lambda kv: float(kv[0]))
+        if g is not None
+    )
+    line = (
+        f"SUMO, every run: {counts['collisions']} collisions, "
+        f"{counts['teleports']} teleports."
+    )
+    if shares:
+        line += (
+            " The policy's gain over uncontrolled AVs in SUMO (mean crossing "
+            f"time), as a share of its gain in JAX: {shares}."
+        )
+    return line + "\n"
+
+
+def readme_markdown(result: dict[str, Any]) -> str:
+    """The README's block of results: Table 3 of the policy in SUMO, the
+    drivers side by side, the paired differences; Markdown."""
+    seeds = ", ".join(str(s) for s in result.get("seeds", []))
+    best = result.get("best_constant")
+    constant = ""
+    if best:
+        numbers = ", ".join(
+            f"{k} {'none' if v is None else f'{v:g}'}"
+            for k, v in best["setting"].items()
+        )
+        objective = best["objective"].get("description", "the training objective")
+        constant = (
+            f"The best constant (`{best.get('source') or 'best constant'}`), the "
+            f"same for every AV at every step: {numbers}; found by `jaxround "
+            f"search` for the objective {objective}.\n\n"
+        )
+    return (
+        f"Table 3 in SUMO, AVs driven by the exported policy (schedule seeds "
+        f"{seeds}):\n\n{table3_markdown(result)}\n"
+        "The policy beside the best constant setting and beside uncontrolled AVs "
+        "of the same vType, same schedules, both simulators (mean crossing time "
+        "of all vehicles / CO2 per vehicle; HVs at 50%):\n\n"
+        f"{markdown_table(BESIDE_COLUMNS, beside_rows(result))}\n{constant}"
+        "Paired on the same vehicles (mean over the seeds of each schedule's "
+        "difference; intervals relative to the second driver):\n\n"
+        f"{markdown_table(PAIRED_COLUMNS, paired_rows(result))}\n"
+        f"{safety_line(result)}"
+    )
+
+
+def write_results_tables(result: dict[str, Any], out: Path) -> None:
+    """Write ``beside.{md,csv}``, ``paired.{md,csv}`` and ``readme_tables.md``
+    (`readme_markdown`) into `out`."""
+    for name, columns, rows in (
+        ("beside", BESIDE_COLUMNS, beside_rows(result)),
+        ("paired", PAIRED_COLUMNS, paired_rows(result)),
+    ):
+        (out / f"{name}.md").write_text(markdown_table(columns, rows))
+        (out / f"{name}.csv").write_text(csv_table(columns, rows))
+    (out / "readme_tables.md").write_text(readme_markdown(result))
