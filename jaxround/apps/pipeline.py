@@ -7,6 +7,7 @@ JSON they wrote (``results.json`` / ``evaluation.json``).
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -83,12 +84,12 @@ def evaluate_everywhere(
 
     n = f"{len(penetrations)} penetrations x {len(seeds)} seed(s)"
     factory = policy_controller(cfg, policy)  # a bad policy fails before any run
-    drivers = "policy, uncontrolled AVs" + (", best constant" if constant else "")
-    say(f"{step}JAX: {drivers}, {n}")
+    others = "uncontrolled AVs" + (", best constant" if constant else "")
+    say(f"{step}JAX: policy, {others}, {n}")
     jax_runs = run_drivers(
         policy, cfg, penetrations, seeds, drain_s=drain_s, constant=constant
     )
-    say(f"{step}SUMO: the policy through libsumo, then {drivers[8:]}, {n}")
+    say(f"{step}SUMO: the policy through libsumo, then {others}, {n}")
     runs = {
         "policy": sumo_runs(cfg, penetrations, seeds, workers, progress, factory,
                             desc="SUMO, policy", drain_s=drain_s),
@@ -278,7 +279,8 @@ def main_job(
 
     Returns:
         The ``results.json`` object: ``{"sumo": {label: M}, "jax": {label:
-        M}, ...}`` (`evaluate_everywhere`) plus the training summary.
+        M}, ...}`` (`evaluate_everywhere`) plus the training summary; its
+        "policy" is the policy's file relative to `out`.
     """
     from agents.common.compilation import enable_compilation_cache
     from agents.run import clear_run, train_to_dir
@@ -314,6 +316,8 @@ def main_job(
         "device_batch": None if device_choice is None else device_choice.to_dict(),
     }
     result["wall_time_s"] = round(time.time() - started, 1)
+    # the run's own files by their place in it, as the results travel with it
+    result["policy"] = os.path.relpath(policy, out)
     write_json(result, out / "results.json")
     return result
 
