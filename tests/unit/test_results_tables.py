@@ -3,6 +3,7 @@ results.json, and the README's block of them."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
@@ -97,8 +98,6 @@ def test_files_and_figures(tmp_path: Path) -> None:
 
 
 def test_readme_block_is_replaced_and_checked(tmp_path: Path) -> None:
-    import json
-
     text = f"# x\n\nbefore\n\n{BEGIN}\n\nold\n\n{END}\n\nafter\n"
     tables = readme_markdown(result())
     new = with_block(text, tables)
@@ -112,3 +111,14 @@ def test_readme_block_is_replaced_and_checked(tmp_path: Path) -> None:
     assert main(args) == 0
     with pytest.raises(ValueError, match="block"):
         readme_block("no markers")
+
+
+def test_readme_tables_are_the_committed_results() -> None:
+    # the main job's results.json of the default run, kept in the repository
+    root = Path(__file__).resolve().parents[2]
+    results = root / "docs/results/milan.json"
+    tables = readme_markdown(json.loads(results.read_text()))
+    assert readme_block((root / "README.md").read_text()) == tables, (
+        "README.md's results block is not docs/results/milan.json's: run python "
+        "-m jaxround.apps.readme_tables docs/results/milan.json --write README.md"
+    )
