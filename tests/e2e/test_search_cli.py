@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 
 from jaxround.apps.cli.main import main
+from jaxround.scenario.best_constant import load_best_constant
 from tests.unit.test_search_cli import tiny_config
 
 
@@ -26,5 +27,10 @@ def test_search_writes_its_results_and_refuses_to_overwrite(tmp_path, capsys) ->
     # the state-dependent search starts at the best constant: never worse there
     assert result["state_search_objective"] <= result["best_constant_search_objective"]
     assert "best constant" in capsys.readouterr().out
+    # the best constant as the main job reads it, with the command that found it
+    best = load_best_constant(out / "best_constant.json")
+    assert best.setting == result["best_constant"] and best.front["points"]
+    assert best.command.startswith("jaxround search --out DIR --config ")
+    assert "--window-s 60 " in best.command and "--penetration 50 " in best.command
     assert main(args) == 2  # the results exist: refused before any work
     assert "already holds search.json" in capsys.readouterr().err
