@@ -349,57 +349,6 @@ def sumo_recheck(
     }  # fmt: skip
 
 
-def best_constant_file(result: dict[str, Any], command: str) -> dict[str, Any]:
-    """The best constant of a search's `result` as the versioned file's JSON
-    (`jaxround.scenario.best_constant`), its front included.
-
-    Args:
-        result: `run_search`'s result.
-        command: the ``jaxround search`` command that gave it.
-    """
-    objective = result["objective"]
-    exit_note = ", with the exit debt" if objective.get("charge_exit") else ""
-    scored = result["scored"]
-    return {
-        "scenario": result["scenario"],
-        "setting": result["best_constant"],
-        "objective": {
-            "description": (
-                f"{objective['time_weight']:g} per second of crossing time plus "
-                f"{objective['co2_weight']:g} per gram of CO2, mean over every "
-                f"vehicle{exit_note}: the system reward's weights"
-            ),
-            **objective,
-        },
-        "found": {
-            key: result[key]
-            for key in (
-                "penetration",
-                "n_vehicles",
-                "window_s",
-                "origin_share",
-                "search_seeds",
-                "eval_seeds",
-                "budget",
-            )
-        },  # fmt: skip
-        "command": command,
-        "front": {
-            "penetration": result["penetration"],
-            "what": "search seeds, mean crossing time and CO2 per vehicle",
-            "points": [
-                {
-                    "time_s": round(scored["time_s"][i], 4),
-                    "co2_g": round(scored["co2_g"][i], 4),
-                    "objective": round(scored["objective"][i], 4),
-                    "setting": describe(scored["settings"][i]),
-                }
-                for i in result["front"]
-            ],
-        },
-    }
-
-
 def front_table(result: dict[str, Any]) -> str:
     """The time-CO2 front of the constants scored, a Markdown table."""
     s = result["scored"]

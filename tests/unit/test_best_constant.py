@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from jaxround.apps.cli.search import search_command
-from jaxround.apps.search import best_constant_file
+from jaxround.apps.search_best_constant import best_constant_file
 from jaxround.scenario.best_constant import (
     BestConstant,
     builtin_path,
@@ -27,13 +27,26 @@ def test_milan_file_is_what_its_search_wrote() -> None:
     result = json.loads((ROOT / "docs/search_1800s/p100.json").read_text())
     saved = json.loads(builtin_path("milan").read_text())
     assert best_constant_file(result, saved["command"]) == saved
+    assert saved["command"].startswith(
+        "jaxround search --out DIR --config milan --penetration 100 --window-s 1800 "
+    )
+
+
+def test_the_command_spells_out_every_option() -> None:
     args = argparse.Namespace(
-        config="milan", penetration=1.0, window_s=1800.0, demand_scale=1.0,
+        config=None, penetration=0.5, window_s=1800.0, demand_scale=1.5,
         search_seeds=8, eval_seeds=20, population=24, generations=8,
         state_generations=None, time_weight=1.0, co2_weight=0.5,
-        charge_exit=True, origin_share=None, max_vehicles=None,
+        charge_exit=False, conflict_weight=0.0, conflict_limit=None,
+        origin_share=(0.55, 0.05, 0.35, 0.05), max_vehicles=None,
     )  # fmt: skip
-    assert saved["command"] == search_command(args)
+    assert search_command(args) == (
+        "jaxround search --out DIR --config milan --penetration 50 --window-s 1800 "
+        "--demand-scale 1.5 --search-seeds 8 --eval-seeds 20 --population 24 "
+        "--generations 8 --state-generations 8 --time-weight 1 --co2-weight 0.5 "
+        "--no-charge-exit --conflict-weight 0 --conflict-limit none "
+        "--origin-share 0.55,0.05,0.35,0.05"
+    )
 
 
 def test_loaded_setting_goes_into_the_av_vtype_only() -> None:

@@ -51,6 +51,12 @@ def shares(text: str) -> tuple[float, ...]:
     return values
 
 
+def _limit_text(limit: str | float | None) -> str:
+    return (
+        "none" if limit is None else limit if isinstance(limit, str) else f"{limit:g}"
+    )
+
+
 def search_command(args: argparse.Namespace) -> str:
     """The ``jaxround search`` command of these options, every one spelled
     out (the output folder as DIR), so that it regenerates the result."""
@@ -63,6 +69,8 @@ def search_command(args: argparse.Namespace) -> str:
         f"--state-generations {args.state_generations or args.generations}",
         f"--time-weight {args.time_weight:g}", f"--co2-weight {args.co2_weight:g}",
         "--charge-exit" if args.charge_exit else "--no-charge-exit",
+        f"--conflict-weight {args.conflict_weight:g}",
+        f"--conflict-limit {_limit_text(args.conflict_limit)}",
     ]  # fmt: skip
     if args.origin_share is not None:
         parts.append("--origin-share " + ",".join(f"{x:g}" for x in args.origin_share))
@@ -76,7 +84,6 @@ def cmd_search(args: argparse.Namespace) -> None:
     from jaxround.analysis.setting_search import Objective, search_scenario
     from jaxround.apps.search import (
         SearchBudget,
-        best_constant_file,
         front_table,
         run_search,
         summary,
@@ -113,6 +120,8 @@ def cmd_search(args: argparse.Namespace) -> None:
             args.workers,
         )  # fmt: skip
     (out / "search.json").write_text(json.dumps(result, indent=1))
+    from jaxround.apps.search_best_constant import best_constant_file
+
     best = best_constant_file(result, search_command(args))
     (out / "best_constant.json").write_text(json.dumps(best, indent=1) + "\n")
     plot_front(result, out / "search.png")
