@@ -51,6 +51,31 @@ PAIRED_COLUMNS = (
     "CO2",
     "95% interval (seeds)",
 )
+#: Near-conflicts per 1,000 vehicles (SUMO's SSM count and JAX's), where the
+#: results have them: a last column in both tables.
+CONFLICTS = "conflicts_per_1000_veh"
+BESIDE_CONFLICTS = "conflicts per 1,000 vehicles, 0 / 50 / 100% AVs"
+PAIRED_CONFLICTS = "conflicts per 1,000 vehicles"
+
+
+def has_conflicts(result: dict[str, Any]) -> bool:
+    """Whether any run of the results counted near-conflicts."""
+    return any(
+        m.get("all", {}).get(CONFLICTS) is not None
+        for sim in SIMULATORS
+        for suffix in DRIVERS
+        for m in (result.get(sim + suffix) or {}).values()
+    )
+
+
+def beside_columns(result: dict[str, Any]) -> tuple[str, ...]:
+    """`BESIDE_COLUMNS`, and the conflicts' where counted."""
+    return BESIDE_COLUMNS + ((BESIDE_CONFLICTS,) if has_conflicts(result) else ())
+
+
+def paired_columns(result: dict[str, Any]) -> tuple[str, ...]:
+    """`PAIRED_COLUMNS`, and the conflicts' where counted."""
+    return PAIRED_COLUMNS + ((PAIRED_CONFLICTS,) if has_conflicts(result) else ())
 
 
 def by_share(per_label: dict[str, Any]) -> dict[float, Any]:
@@ -59,8 +84,8 @@ def by_share(per_label: dict[str, Any]) -> dict[float, Any]:
 
 
 def beside_rows(result: dict[str, Any]) -> list[list[str]]:
-    """Rows of `BESIDE_COLUMNS`: per simulator, each driver present."""
-    rows = []
+    """Rows of `beside_columns`: per simulator, each driver present."""
+    conflicts, rows = has_conflicts(result), []
     for sim, sim_name in SIMULATORS.items():
         for suffix, driver in DRIVERS.items():
             runs = result.get(sim + suffix)
@@ -76,6 +101,10 @@ def beside_rows(result: dict[str, Any]) -> list[list[str]]:
                 row.append("-" if t is None or c is None else f"{t:.2f} s / {c:.1f} g")
             hv = runs.get(HV_AT, {}).get("hv", {}).get("mean_crossing_time_s")
             row.append("-" if hv is None else f"{hv:.2f} s")
+            if conflicts:
+                counts = [runs.get(label, {}).get("all", {}).get(CONFLICTS)
+                          for label in BESIDE_AT]  # fmt: skip
+                row.append(" / ".join("-" if c is None else f"{c:.0f}" for c in counts))
             rows.append(row)
     return rows
 
@@ -100,10 +129,17 @@ def _difference(d: dict[str, Any] | None, unit: str) -> tuple[str, str]:
     return text, f"[{100 * ci[0] / base:+.1f}, {100 * ci[1] / base:+.1f}]%"
 
 
+def _count_difference(d: dict[str, Any] | None) -> str:
+    """ "+33.8 (11.7 to 45.5)" of a paired difference of counts."""
+    if d is None:
+        return "-"
+    return f"{d['diff']:+.1f} ({d['baseline']:.1f} to {d['policy']:.1f})"
+
+
 def paired_rows(result: dict[str, Any]) -> list[list[str]]:
-    """Rows of `PAIRED_COLUMNS`: per simulator, pair and penetration, the
-    mean difference of all vehicles' crossing time and CO2."""
-    rows = []
+    """Rows of `paired_columns`: per simulator, pair and penetration, the
+    mean difference of all vehicles' crossing time and CO2 (and conflicts)."""
+    conflicts, rows = has_conflicts(result), []
     for sim, sim_name in SIMULATORS.items():
         for where, name in PAIRS:
             pair = _pair(result, where)
@@ -113,7 +149,10 @@ def paired_rows(result: dict[str, Any]) -> list[list[str]]:
                 every = by_class["all"]
                 t, t_ci = _difference(every.get("crossing_time_s"), "s")
                 c, c_ci = _difference(every.get("co2_g"), "g")
-                rows.append([f"{sim_name}, {name}", label, t, t_ci, c, c_ci])
+                row = [f"{sim_name}, {name}", label, t, t_ci, c, c_ci]
+                if conflicts:
+                    row.append(_count_difference(every.get(CONFLICTS)))
+                rows.append(row)
     return rows
 
 
@@ -171,10 +210,10 @@ def readme_markdown(result: dict[str, Any]) -> str:
         "The policy beside the best constant setting and beside uncontrolled AVs "
         "of the same vType, same schedules, both simulators (mean crossing time "
         "of all vehicles / CO2 per vehicle; HVs at 50%):\n\n"
-        f"{markdown_table(BESIDE_COLUMNS, beside_rows(result))}\n{constant}"
+        f"{markdown_table(beside_columns(result), beside_rows(result))}\n{constant}"
         "Paired on the same vehicles (mean over the seeds of each schedule's "
         "difference; intervals relative to the second driver):\n\n"
-        f"{markdown_table(PAIRED_COLUMNS, paired_rows(result))}\n"
+        f"{markdown_table(paired_columns(result), paired_rows(result))}\n"
         f"{safety_line(result)}"
     )
 
@@ -183,8 +222,8 @@ def write_results_tables(result: dict[str, Any], out: Path) -> None:
     """Write ``beside.{md,csv}``, ``paired.{md,csv}`` and ``readme_tables.md``
     (`readme_markdown`) into `out`."""
     for name, columns, rows in (
-        ("beside", BESIDE_COLUMNS, beside_rows(result)),
-        ("paired", PAIRED_COLUMNS, paired_rows(result)),
+        ("beside", beside_columns(result), beside_rows(result)),
+        ("paired", paired_columns(result), paired_rows(result)),
     ):
         (out / f"{name}.md").write_text(markdown_table(columns, rows))
         (out / f"{name}.csv").write_text(csv_table(columns, rows))

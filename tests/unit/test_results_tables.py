@@ -122,3 +122,21 @@ def test_readme_tables_are_the_committed_results() -> None:
         "README.md's results block is not docs/results/milan.json's: run python "
         "-m jaxround.apps.readme_tables docs/results/milan.json --write README.md"
     )
+
+
+def test_conflicts_get_a_column_where_counted() -> None:
+    r = result()
+    assert "conflicts" not in readme_markdown(r)
+    for sim in ("sumo", "jax"):
+        for label, m in r[sim].items():
+            m["all"]["conflicts_per_1000_veh"] = 10.0 * float(label)
+    every = r["comparison"]["sumo"]["100"]["all"]  # shared by every pair here
+    counted = {"diff": 33.8, "baseline": 11.7, "policy": 45.5}
+    r["comparison"]["sumo"] = {
+        "100": {"all": {**every, "conflicts_per_1000_veh": counted}}
+    }
+    assert beside_rows(r)[0][-1] == "0 / 500 / 1000"
+    assert beside_rows(r)[1][-1] == "- / - / -"  # the best constant counted none
+    assert paired_rows(r)[0][-1] == "+33.8 (11.7 to 45.5)"
+    assert paired_rows(r)[1][-1] == "-"
+    assert "conflicts per 1,000 vehicles" in readme_markdown(r)
