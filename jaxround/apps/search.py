@@ -160,17 +160,19 @@ def refine_tau(
 
 def paired_objective(policy: np.ndarray, baseline: np.ndarray) -> dict[str, Any]:
     """Policy minus baseline of per-seed objectives (S,), with the 95%
-    t-interval over seeds, absolute and relative to the baseline."""
+    t-interval over seeds, absolute and relative to the baseline (None
+    relative to a baseline of 0, e.g. no conflicts)."""
     diff = np.asarray(policy, np.float64) - np.asarray(baseline, np.float64)
     base = float(np.mean(baseline))
     ci = mean_ci(diff)
+    relative = ci is not None and base != 0
     return {
         "baseline": base,
         "policy": float(np.mean(policy)),
         "diff": float(diff.mean()),
-        "rel_diff": float(diff.mean()) / base,
+        "rel_diff": float(diff.mean()) / base if base else None,
         "ci95_seeds": None if ci is None else [ci[1], ci[2]],
-        "rel_ci95_seeds": None if ci is None else [ci[1] / base, ci[2] / base],
+        "rel_ci95_seeds": [ci[1] / base, ci[2] / base] if relative else None,
         "per_seed_diff": diff.tolist(),
     }
 
