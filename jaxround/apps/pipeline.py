@@ -349,9 +349,14 @@ def headline(result: dict[str, Any]) -> str:
                 t, c = by_class["all"]["crossing_time_s"], by_class["all"]["co2_g"]
                 if t is None or c is None:
                     continue
+                k = by_class["all"].get("conflicts_per_1000_veh")
+                conflicts = "" if k is None else (
+                    f", conflicts per 1,000 veh {k['policy']:.1f} against "
+                    f"{k['baseline']:.1f}"
+                )  # fmt: skip
                 lines.append(
                     f"{sim}, {label}% AVs, {what}: crossing time "
                     f"{t['diff']:+.2f} s ({100 * t['rel_diff']:+.1f}%), CO2 "
-                    f"{c['diff']:+.2f} g/veh ({100 * c['rel_diff']:+.1f}%)"
+                    f"{c['diff']:+.2f} g/veh ({100 * c['rel_diff']:+.1f}%)" + conflicts
                 )
     return "\n".join(lines)
