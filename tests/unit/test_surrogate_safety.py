@@ -9,12 +9,15 @@ import pytest
 
 from jaxround.analysis.setting_search import SPACE, bounds, from_unit, to_unit
 from jaxround.apps.drivers import parse_av_numbers, with_av_numbers
+from jaxround.apps.search import CONFLICT_PENALTY, fitness_of
+from jaxround.core.params import EnvParams
 from jaxround.core.surrogate_safety import (
     deceleration_to_avoid_crash,
     following_conflicts,
     time_to_collision,
 )
 from jaxround.envs.assertiveness import assertive_tau
+from jaxround.envs.reward import system_reward
 from jaxround.scenario.config import ConfigError, config_from_dict, load_config
 from tests.conftest import builtin_dict
 
@@ -106,3 +109,37 @@ def test_av_numbers_from_the_command_line() -> None:
         parse_av_numbers("tau=fast")
     with pytest.raises(ConfigError, match="drivers.av.tau"):
         with_av_numbers(load_config("milan"), {"tau": -1.0})
+
+
+def load_params() -> EnvParams:
+    return EnvParams.from_config(load_config("milan"))
+
+
+def test_the_system_reward_charges_conflicts_shared_and_own() -> None:
+    params = load_params()
+    params = params.replace(
+        reward=params.reward.replace(conflict_weight=jnp.float32(10.0))
+    )
+    active = jnp.array([True, True, True])
+    agent = jnp.array([True, True, False])
+    co2 = jnp.zeros(3)
+    plain = system_reward(jnp.int32(3), co2, active, agent, params, 0.5, share=0.5)
+    charged = system_reward(
+        jnp.int32(3), co2, active, agent, params, 0.5, share=0.5,
+        conflicts_step=jnp.array([1, 0, 1]),
+    )  # fmt: skip
+    # shared: 2 conflicts over 2 AVs, half weight; own: the first AV's one
+    np.testing.assert_allclose(
+        np.asarray(plain - charged), [10 * (0.5 * 1 + 0.5 * 1), 10 * 0.5, 0.0]
+    )
+
+
+def test_the_constraint_penalises_only_the_excess() -> None:
+    scores = {
+        "objective": np.array([[40.0, 40.0], [38.0, 38.0]]),
+        "missing": np.zeros((2, 2), int),
+        "conflicts_per_1000": np.array([[2.0, 4.0], [20.0, 30.0]]),
+    }
+    np.testing.assert_allclose(fitness_of(scores), [40.0, 38.0])
+    limited = fitness_of(scores, conflict_limit=5.0)
+    np.testing.assert_allclose(limited, [40.0, 38.0 + CONFLICT_PENALTY * 20.0])
