@@ -4,8 +4,10 @@ In ``agent.action: assertiveness`` an AV's action is one real number x per
 step; its assertiveness ``u = tanh(x)`` in (-1, 1) sets two numbers of its
 vType for that step, around the vType's own values (tau0, impatience0)::
 
-    tau        = tau0 * 2 ** -u                  (0.5 x .. 2 x the vType's)
+    tau        = max(tau0 * 2 ** -u, min(tau_floor, tau0))   (0.5 x .. 2 x)
     impatience = clip(impatience0 + max(u, 0), 0, 1)
+
+tau_floor is the scenario's time-gap floor (`safety.min_av_tau_s`, 0.8 s).
 
 u = 0 (x = 0) is the vType itself: a policy that outputs 0 drives exactly
 like uncontrolled AVs, in JAX and in SUMO. SUMO's own models stay in charge
