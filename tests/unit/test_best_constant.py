@@ -22,14 +22,17 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_milan_file_is_what_its_search_wrote() -> None:
-    # docs/search_1800s/p100.json is the search's result; the file is the
+    # docs/safety/search/p100.json is the search's result (the best safe
+    # constant: the time-gap floor and the conflict limit); the file is the
     # search's own best_constant.json of it, with the command that ran it
-    result = json.loads((ROOT / "docs/search_1800s/p100.json").read_text())
+    result = json.loads((ROOT / "docs/safety/search/p100.json").read_text())
     saved = json.loads(builtin_path("milan").read_text())
     assert best_constant_file(result, saved["command"]) == saved
     assert saved["command"].startswith(
-        "jaxround search --out DIR --config milan --penetration 100 --window-s 1800 "
+        "jaxround search --out DIR --config milan --penetration 100 --window-s 600 "
     )
+    assert saved["command"].endswith("--conflict-limit vtype")
+    assert saved["setting"]["tau"] >= load_config("milan").safety.min_av_tau_s
 
 
 def test_the_command_spells_out_every_option() -> None:
