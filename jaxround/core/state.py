@@ -15,6 +15,8 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from jaxround.core.surrogate_safety import NO_TTC_S
+
 
 def _check(fields: dict[str, tuple[Any, tuple[int, ...], str]], where: str) -> None:
     """Raise ValueError unless each field has its trailing shape and its kind.
@@ -131,7 +133,8 @@ class EpisodeStats:
         conflicts: int (N,) near-conflicts each vehicle was part of, as
             SUMO's SSM device counts them (`jaxround.core.surrogate_safety`).
         min_ttc_s: float (N,) the smallest time to collision of each vehicle,
-            as follower or leader (inf: never closing in).
+            as follower or leader (`surrogate_safety.NO_TTC_S`: never
+            closing in).
         max_drac_mps2: float (N,) the largest deceleration to avoid a crash.
         encounter_leader: int (M,) the vehicle each slot's current following
             encounter is with (-1: none).
@@ -159,7 +162,7 @@ class EpisodeStats:
         return cls(
             trips, trips, legs, legs, zero, zero, zero,
             conflicts=jnp.zeros(n, jnp.int32),
-            min_ttc_s=jnp.full(n, jnp.inf, jnp.float32),
+            min_ttc_s=jnp.full(n, NO_TTC_S, jnp.float32),
             max_drac_mps2=jnp.zeros(n, jnp.float32),
             encounter_leader=-jnp.ones(m, jnp.int32),
             encounter_conflict=jnp.zeros(m, bool),

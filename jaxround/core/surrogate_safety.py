@@ -32,6 +32,10 @@ import jax.numpy as jnp
 #: Where a measure has no value (SUMO's INVALID_DOUBLE): TTC of a pair that
 #: is not closing in.
 NO_COLLISION = jnp.inf
+#: The smallest TTC the episode statistics hold for a vehicle that never
+#: closed in on anyone: finite, as every statistic is, and far past any
+#: threshold, s.
+NO_TTC_S = 1e6
 
 
 def time_to_collision(

@@ -10,6 +10,7 @@ server and the rides whose delay is measured.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import os
 import time
@@ -109,15 +110,14 @@ async def scripted_ride(base: str, kind: str = "first") -> dict[str, Any]:
                         seq += 1
                         sent = pedals
                         probes[seq] = {"seq": seq, "sent": time.perf_counter()}
-                        await ws.send(
-                            json.dumps(
-                                {
-                                    "type": "input",
-                                    "seq": seq,
-                                    "throttle": pedals[0],
-                                    "brake": pedals[1],
-                                }
-                            )
+                        await _send_unless_over(
+                            ws,
+                            {
+                                "type": "input",
+                                "seq": seq,
+                                "throttle": pedals[0],
+                                "brake": pedals[1],
+                            },
                         )
                 elif message["type"] == "timing" and message["seq"] in probes:
                     probes[message["seq"]]["server"] = message
@@ -132,6 +132,16 @@ async def scripted_ride(base: str, kind: str = "first") -> dict[str, Any]:
     except (OSError, websockets.exceptions.WebSocketException) as err:
         return {"status": "lost", "frames": frames, "error": repr(err)}
     return {"status": "lost", "frames": frames, "error": "closed without an end"}
+
+
+async def _send_unless_over(ws: Any, message: dict[str, Any]) -> None:
+    """Send a rider's message; a ride the server has just ended (closed
+    normally, its ``end`` message still to be read) takes no more input, as
+    a browser's pedal press after the end goes nowhere."""
+    import websockets
+
+    with contextlib.suppress(websockets.exceptions.ConnectionClosedOK):
+        await ws.send(json.dumps(message))
 
 
 #: The server's parts of an input's way to the frame (the ``timing`` message).
