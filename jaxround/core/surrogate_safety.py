@@ -29,23 +29,20 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-#: Where a measure has no value (SUMO's INVALID_DOUBLE): TTC of a pair that
-#: is not closing in.
-NO_COLLISION = jnp.inf
-#: The smallest TTC the episode statistics hold for a vehicle that never
-#: closed in on anyone: finite, as every statistic is, and far past any
-#: threshold, s.
+#: The TTC of a pair that is not closing in (SUMO's INVALID_DOUBLE), s:
+#: finite, as every statistic the environment keeps is, and far past any
+#: threshold.
 NO_TTC_S = 1e6
 
 
 def time_to_collision(
     gap: jax.Array, v_follower: jax.Array, v_leader: jax.Array
 ) -> jax.Array:
-    """MSDevice_SSM::computeTTC: gap / dv when closing in (inf if not, 0 once
-    the gap is gone), float of the inputs' shape."""
+    """MSDevice_SSM::computeTTC: gap / dv when closing in (`NO_TTC_S` if
+    not, 0 once the gap is gone), float of the inputs' shape."""
     closing = v_follower - v_leader
     ttc = gap / jnp.where(closing > 0, closing, 1.0)
-    return jnp.where(gap <= 0, 0.0, jnp.where(closing > 0, ttc, NO_COLLISION))
+    return jnp.where(gap <= 0, 0.0, jnp.where(closing > 0, ttc, NO_TTC_S))
 
 
 def deceleration_to_avoid_crash(
@@ -61,7 +58,7 @@ class FollowingConflicts(NamedTuple):
     """One step's following measures of each slot to its leader, (M,).
 
     Attributes:
-        ttc_s: float, TTC to the leader (inf: none).
+        ttc_s: float, TTC to the leader (`NO_TTC_S`: none).
         drac_mps2: float, DRAC behind the leader (0: none).
         encounter_leader: int, the leader's vehicle (schedule index; -1: none),
             to be kept for the next step.
@@ -103,7 +100,7 @@ def following_conflicts(
         `FollowingConflicts`, (M,) each.
     """
     has_leader = leader_vehicle >= 0
-    ttc = jnp.where(has_leader, time_to_collision(gap, v_follower, v_leader), jnp.inf)
+    ttc = jnp.where(has_leader, time_to_collision(gap, v_follower, v_leader), NO_TTC_S)
     drac = jnp.where(
         has_leader, deceleration_to_avoid_crash(gap, v_follower, v_leader), 0.0
     )

@@ -73,12 +73,11 @@ def add_conflicts(
     follower = jnp.where(follows, vid, n_schedule)  # out of range: dropped
     followed = jnp.where(follows, found.encounter_leader, n_schedule)
     vehicle = jnp.where(vid >= 0, vid, n_schedule)
-    ttc = jnp.minimum(found.ttc_s, surrogate_safety.NO_TTC_S)  # finite
-    min_ttc = stats.min_ttc_s.at[follower].min(ttc, mode="drop")
+    min_ttc = stats.min_ttc_s.at[follower].min(found.ttc_s, mode="drop")
     max_drac = stats.max_drac_mps2.at[follower].max(found.drac_mps2, mode="drop")
     return stats.replace(
         conflicts=stats.conflicts.at[vehicle].add(conflicts_step, mode="drop"),
-        min_ttc_s=min_ttc.at[followed].min(ttc, mode="drop"),
+        min_ttc_s=min_ttc.at[followed].min(found.ttc_s, mode="drop"),
         max_drac_mps2=max_drac.at[followed].max(found.drac_mps2, mode="drop"),
         encounter_leader=found.encounter_leader,
         encounter_conflict=found.encounter_conflict,

@@ -12,6 +12,7 @@ from jaxround.apps.drivers import parse_av_numbers, with_av_numbers
 from jaxround.apps.search import CONFLICT_PENALTY, fitness_of
 from jaxround.core.params import EnvParams
 from jaxround.core.surrogate_safety import (
+    NO_TTC_S,
     deceleration_to_avoid_crash,
     following_conflicts,
     time_to_collision,
@@ -29,7 +30,7 @@ def test_ttc_and_drac_by_hand() -> None:
     ttc = np.asarray(time_to_collision(gap, v_follower, v_leader))
     drac = np.asarray(deceleration_to_avoid_crash(gap, v_follower, v_leader))
     # closing at 5 m/s over 10 m; opening; touching; closing at 8 over 4
-    np.testing.assert_allclose(ttc, [2.0, np.inf, 0.0, 0.5])
+    np.testing.assert_allclose(ttc, [2.0, NO_TTC_S, 0.0, 0.5])
     np.testing.assert_allclose(drac, [1.25, 0.0, 0.0, 8.0])
 
 
