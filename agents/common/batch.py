@@ -173,7 +173,11 @@ class BatchTrainer:
         return self.shard(self._env_reset(keys, self.env_params))
 
     def env_step(
-        self, keys: jax.Array, state: EnvState, action: jax.Array
+        self,
+        keys: jax.Array,
+        state: EnvState,
+        action: jax.Array,
+        params: EnvParams | None = None,
     ) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, dict[str, Any]]:
         """`jax.vmap(env.step)` over the B roundabouts, resetting only when needed.
 
@@ -187,16 +191,16 @@ class BatchTrainer:
             keys: PRNG keys (B, 2), one per roundabout.
             state: the B states, leaves (B, ...).
             action: float (B, M, 2) per slot.
+            params: the B parameter sets (leaves (B, ...)); None: `env_params`.
 
         Returns:
             (obs float (B, M, D), states, reward float (B, M), done bool (B,),
             info), as `jax.vmap(env.step)`.
         """
-        obs, state, reward, done, info = self._env_step(
-            keys, state, action, self.env_params
-        )
+        params = self.env_params if params is None else params
+        obs, state, reward, done, info = self._env_step(keys, state, action, params)
         obs, state = auto_reset(
-            done, (obs, state), lambda: self._env_reset(keys, self.env_params)
+            done, (obs, state), lambda: self._env_reset(keys, params)
         )
         return obs, state, reward, done, info
 

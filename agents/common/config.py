@@ -24,6 +24,7 @@ from typing import Any, ClassVar, TypeVar
 
 import yaml
 
+from agents.common.constraint_config import ConflictConstraintConfig
 from agents.common.device_batch import AUTO, DeviceChoice, size_for_device, this_device
 from jaxround.scenario.config import (
     ACTIONS,
@@ -103,10 +104,7 @@ class TrainerConfig:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain data (lists for tuples), as written to YAML."""
-        return {
-            k: list(v) if isinstance(v, tuple) else v
-            for k, v in dataclasses.asdict(self).items()
-        }
+        return _plain(dataclasses.asdict(self))
 
     def to_yaml(self) -> str:
         return yaml.safe_dump(self.to_dict(), sort_keys=False)
@@ -164,6 +162,7 @@ class PPOConfig(TrainerConfig):
     action: str = ""  # what the AVs' action means; empty: the scenario's agent.action
     reward: str = ""  # the AVs' reward; empty: the scenario's agent.reward
     conflict_weight: float | None = None  # per conflict; None: agent.conflict_weight
+    conflict_constraint: ConflictConstraintConfig | None = None  # None: a fixed price
     n_envs: int = 64  # roundabouts side by side (split over devices); YAML: auto
     n_steps: int = 64  # env steps per rollout, per roundabout
     total_env_steps: int = 1_000_000  # env steps over all roundabouts and updates
@@ -218,6 +217,8 @@ class PPOConfig(TrainerConfig):
             _require(getattr(self, name) >= 1, name, getattr(self, name), ">= 1")
         _require(0 < self.gamma <= 1, "gamma", self.gamma, "in (0, 1]")
         _require(0 <= self.gae_lambda <= 1, "gae_lambda", self.gae_lambda, "in [0, 1]")
+        if self.conflict_constraint is not None:
+            self.conflict_constraint.validate(len(self.penetrations))
         if self.env_steps_per_update % self.minibatches:
             raise ConfigError(
                 f"minibatches: {self.minibatches} does not divide n_envs * n_steps "
@@ -312,18 +313,8 @@ def load_ppo_config(source: str | Path | None = None) -> PPOConfig:
 
 
 def load_apg_config(source: str | Path | None = None) -> APGConfig:
-    """Load and validate an APG config.
-
-    Args:
-        source: a YAML path or the name of a built-in APG config
-            (``"apg_milan"``, the default).
-
-    Returns:
-        The validated `APGConfig`.
-
-    Raises:
-        ConfigError: the file is missing, not YAML, or a field is wrong.
-    """
+    """Load and validate an APG config: a YAML path or the name of a built-in
+    one (``"apg_milan"``, the default); `ConfigError` as `load_ppo_config`."""
     return load_trainer_config(APGConfig, source)
 
 
@@ -371,6 +362,13 @@ def trainer_config_and_choice(
     cfg = dataclass_from_dict(cls, data, f"{cls.KIND} config")
     cfg.validate()
     return cfg, choice
+
+
+def _plain(data: Any) -> Any:
+    """Lists for tuples, at every depth (YAML writes no tuples)."""
+    if isinstance(data, dict):
+        return {k: _plain(v) for k, v in data.items()}
+    return [_plain(v) for v in data] if isinstance(data, tuple | list) else data
 
 
 def _require(ok: bool, where: str, value: Any, expected: str) -> None:

@@ -38,7 +38,10 @@ import optax
 from agents.common import networks
 from agents.common.batch import BatchTrainer, agent_outcomes
 from agents.common.config import PPOConfig
+from agents.common.constraint_config import ConflictConstraintConfig
 from agents.common.losses import masked_mean
+from agents.ppo import constraint
+from agents.ppo.constraint import ConflictLedger
 from agents.ppo.losses import Batch, compute_gae, ppo_loss
 from jaxround.core.state import EnvState
 
@@ -49,6 +52,8 @@ METRICS = (
     "av_crossing_time_s",
     "finished_agents",
     "agent_steps",
+    "conflicts_per_1000",
+    "conflict_price",
     "policy_loss",
     "value_loss",
     "entropy",
@@ -72,6 +77,9 @@ class RunnerState(NamedTuple):
         update: int32, updates done.
         trip_noise: float (B, M) each slot's exploration noise, drawn when a
             vehicle takes the slot and held for its trip (`trip_noise`).
+        ledger: the conflict price of each penetration group and the running
+            conflict rate (`agents.ppo.constraint`; the price stays the
+            config's without a ``conflict_constraint``).
     """
 
     params: Any
@@ -82,6 +90,7 @@ class RunnerState(NamedTuple):
     key: jax.Array
     update: jax.Array
     trip_noise: jax.Array
+    ledger: ConflictLedger
 
 
 class Transition(NamedTuple):
@@ -99,6 +108,8 @@ class Transition(NamedTuple):
     truncated: jax.Array  # bool the episode ended with this step
     finished_return: jax.Array  # float return of an agent that left (else 0)
     crossing_s: jax.Array  # float crossing time of an agent that left (else 0)
+    conflicts: jax.Array  # float (B,) conflicts in the step, all vehicles
+    arrived: jax.Array  # float (B,) vehicles that left in the step
 
 
 class Trainer(BatchTrainer):
@@ -126,6 +137,8 @@ class Trainer(BatchTrainer):
             optax.clip_by_global_norm(config.max_grad_norm),
             optax.adam(self.lr_schedule, eps=1e-5),
         )
+        self.n_groups = len(config.penetrations)
+        self.groups = constraint.groups(config.n_envs, self.n_groups)
 
     # ------------------------------------------------------------------ pieces
 
@@ -136,11 +149,40 @@ class Trainer(BatchTrainer):
         """Fresh parameters and B freshly reset roundabouts."""
         start = self.fresh_start(key)
         noise = jax.random.normal(jax.random.fold_in(key, 1), start["obs"].shape[:-1])
-        return RunnerState(**start, trip_noise=self.shard(noise))
+        ledger = self.start_ledger(jax.random.fold_in(key, 2))
+        return RunnerState(**start, trip_noise=self.shard(noise), ledger=ledger)
+
+    def start_ledger(self, key: jax.Array) -> ConflictLedger:
+        """The conflict prices and limits before the first update; with a
+        constraint and no limit given, the limit is the AVs' vType's own rate,
+        measured on `measure_episodes` episodes of the batch (`key`)."""
+        settings = self.config.conflict_constraint
+        price = self.scenario.agent.conflict_weight
+        if settings is None:  # a fixed price; the rate is still followed
+            settings = ConflictConstraintConfig(limit=(float("nan"),))
+        measured = None
+        if not settings.limit:
+            b, m = self.config.n_envs, self.env.max_vehicles
+            measured = constraint.measure_uncontrolled(
+                self.env_step, self.reset_envs, key,
+                n_steps=settings.measure_episodes * self.env.episode_steps,
+                group=self.groups, n_groups=self.n_groups, action_shape=(b, m, 2),
+            )  # fmt: skip
+        return constraint.start_ledger(
+            settings, start_price=price, n_groups=self.n_groups, measured=measured
+        )
+
+    def env_params_now(self, runner: RunnerState) -> Any:
+        """The batch's `EnvParams` with the runner's conflict prices (the
+        constant ones without a constraint)."""
+        if self.config.conflict_constraint is None:
+            return self.env_params
+        return constraint.with_prices(self.env_params, runner.ledger.price, self.groups)
 
     def rollout(self, runner: RunnerState) -> tuple[RunnerState, Transition]:
         """`n_steps` env steps of all roundabouts; Transition leaves are (T, B, ...)."""
         b, dt = self.config.n_envs, self.env.dt
+        env_params = self.env_params_now(runner)
 
         def one_step(carry, _):
             env_state, obs, ep_return, trip_noise, prev_vid, key = carry
@@ -155,7 +197,7 @@ class Trainer(BatchTrainer):
                 accel, change, log_prob = networks.sample(out, k_act)
             action = networks.env_action(accel, change)  # (B, M, 2)
             obs_next, state_next, reward, done, info = self.env_step(
-                jax.random.split(k_env, b), env_state, action
+                jax.random.split(k_env, b), env_state, action, env_params
             )
             o = agent_outcomes(env_state, state_next, reward, done, info, ep_return, dt)
             step = Transition(
@@ -171,6 +213,8 @@ class Trainer(BatchTrainer):
                 truncated=o.truncated,
                 finished_return=o.finished_return,
                 crossing_s=o.crossing_s,
+                conflicts=info["conflicts"].astype(jnp.float32),
+                arrived=info["arrived"].astype(jnp.float32),
             )
             carry = self.shard((state_next, obs_next, o.episode_return, trip_noise))
             return (*carry, env_state.vid, key), step
@@ -239,11 +283,27 @@ class Trainer(BatchTrainer):
         runner = runner._replace(params=params, opt_state=opt_state, key=key)
         return runner, jax.tree.map(jnp.mean, aux)
 
+    def follow_conflicts(self, ledger: ConflictLedger, traj: Transition):
+        """The ledger after a rollout: running counts, and with a constraint
+        the prices' multiplier step (`agents.ppo.constraint.update_ledger`)."""
+        conflicts = constraint.group_totals(traj.conflicts, self.groups, self.n_groups)
+        arrivals = constraint.group_totals(traj.arrived, self.groups, self.n_groups)
+        settings = self.config.conflict_constraint
+        if settings is not None:
+            return constraint.update_ledger(ledger, settings, conflicts, arrivals)
+        decay = ConflictConstraintConfig().smoothing
+        return ledger._replace(
+            conflicts=decay * ledger.conflicts + conflicts,
+            arrivals=decay * ledger.arrivals + arrivals,
+        )
+
     def update(self, runner: RunnerState) -> tuple[RunnerState, dict[str, jax.Array]]:
         """One PPO update: rollout, GAE, optimisation. Pure."""
         n_lr_steps = runner.update * self.config.epochs * self.config.minibatches
         runner, traj = self.rollout(runner)
         runner, losses = self.learn(runner, traj)
+        runner = runner._replace(ledger=self.follow_conflicts(runner.ledger, traj))
+        n_conflicts, n_arrived = jnp.sum(traj.conflicts), jnp.sum(traj.arrived)
         n_finished = jnp.sum(traj.terminated & traj.agent)
         per_finished = jnp.where(n_finished > 0, 1.0 / n_finished, jnp.nan)
         metrics = {
@@ -252,6 +312,10 @@ class Trainer(BatchTrainer):
             "av_crossing_time_s": jnp.sum(traj.crossing_s) * per_finished,
             "finished_agents": n_finished.astype(jnp.float32),
             "agent_steps": jnp.sum(traj.agent).astype(jnp.float32),
+            "conflicts_per_1000": jnp.where(
+                n_arrived > 0, 1000.0 * n_conflicts / n_arrived, jnp.nan
+            ),
+            "conflict_price": jnp.mean(runner.ledger.price),
             **losses,
             "learning_rate": self.lr_schedule(n_lr_steps),
         }

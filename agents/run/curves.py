@@ -20,9 +20,9 @@ PPO_CURVES = (
     ("episode_return", "return of finished AVs"),
     ("reward_per_agent_step", "reward per AV step"),
     ("av_crossing_time_s", "AV crossing time (s)"),
-    ("value_loss", "value loss"),
+    ("conflicts_per_1000", "conflicts per 1,000 vehicles"),
+    ("conflict_price", "price of a conflict (veh-s)"),
     ("entropy", "entropy"),
-    ("approx_kl", "approx. KL"),
 )
 #: Curves of an APG run.
 APG_CURVES = (

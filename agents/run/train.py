@@ -126,6 +126,8 @@ def train_to_dir(
         else:
             say(f"no intact checkpoint in {out}: starting from update 0")
 
+    if getattr(config, "conflict_constraint", None) is not None and start == 0:
+        say(conflict_limit_line(config, runner.ledger.limit))
     draw_curves = functools.partial(
         plot_learning_curves,
         out / "metrics.csv",
@@ -176,6 +178,13 @@ def train_to_dir(
         "last": last,
         "policy": None,
     }
+    if hasattr(runner, "ledger"):  # PPO: the conflict limit and price of each share
+        result["conflict_limit_per_1000"] = np.asarray(runner.ledger.limit).tolist()
+        result["conflict_price"] = np.asarray(runner.ledger.price).tolist()
+        if config.conflict_constraint is not None:
+            result["conflict_summary"] = conflict_limit_line(
+                config, runner.ledger.limit, runner.ledger.price
+            )
     if done == n_updates and primary:
         npz, _ = export_policy(
             jax.device_get(runner.params), policy_layout(trainer), out / POLICY_STEM
@@ -183,6 +192,20 @@ def train_to_dir(
         draw_curves()
         result["policy"] = str(npz)
     return result
+
+
+def conflict_limit_line(config: Any, limit: Any, price: Any = None) -> str:
+    """What the conflict constraint holds each penetration to, in words (and
+    the price it has come to, when given)."""
+    given = config.conflict_constraint.limit
+    where = "given" if given else "uncontrolled AVs, measured"
+    limits = np.asarray(limit).tolist()
+    prices = [None] * len(limits) if price is None else np.asarray(price).tolist()
+    per_share = ", ".join(
+        f"{share:.0%} AVs {x:.1f}" + ("" if p is None else f" (price {p:.0f})")
+        for share, x, p in zip(config.penetrations, limits, prices)
+    )
+    return f"conflicts per 1,000 vehicles allowed ({where}): {per_share}"
 
 
 def clear_run(out: Path) -> None:

@@ -331,6 +331,7 @@ class RoundaboutEnv:
             "terminated": agent & arrived,
             "truncated": agent & ~arrived & done,
             "arrived": jnp.sum(arrived),
+            "conflicts": jnp.sum(conflicts_step),  # each vehicle of a pair counts
             "collisions": jnp.sum(crashed),
             "overflow": state.stats.overflow,
             "n_active": jnp.sum(state.active),

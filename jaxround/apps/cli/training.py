@@ -187,8 +187,7 @@ def cmd_train(args: argparse.Namespace) -> None:
         )  # fmt: skip
     except CheckpointMismatchError as err:
         raise UsageError(f"--resume {out}: {err}") from None
-    rate = result["env_steps_per_s"]
-    last = result["last"]
+    rate, last = result["env_steps_per_s"], result["last"]
     print(
         f"{result['updates']} updates"
         + (f", {rate:,.0f} env-steps/s" if rate else "")
@@ -199,6 +198,8 @@ def cmd_train(args: argparse.Namespace) -> None:
             else ""
         )
     )
+    if result.get("conflict_summary"):
+        print(result["conflict_summary"])
     print(f"wrote {out / 'metrics.csv'}, {out / 'learning_curves.png'}")
     if result["policy"]:
         print(f"policy: {result['policy']} (+ .json)")
