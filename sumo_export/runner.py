@@ -52,6 +52,8 @@ class SumoRun:
     queues: np.ndarray | None = None
     #: the SSM device's conflicts by encounter type, ``{type: count}``
     conflict_types: dict[str, int] | None = None
+    #: lane changes of all vehicles (SUMO's --lanechange-output; 0 on one lane)
+    lane_changes: int = 0
 
 
 def run_schedule(
@@ -84,8 +86,10 @@ def run_schedule(
         tripinfo = out / "tripinfo.xml"
         stats = out / "statistics.xml"
         ssm = out / "ssm.xml"
+        lane_changes = out / "lanechange.xml"
         args = sumo_arguments(files.sumocfg, tripinfo, stats)
         args += cfg.safety.sumo_options(str(ssm))
+        args += ["--lanechange-output", str(lane_changes)]
         libsumo.start(args)
         try:
             started = time.perf_counter()
@@ -102,6 +106,7 @@ def run_schedule(
             max_drac_mps2=conflicts.max_drac_mps2,
         )
         collisions, emergency, teleports = _read_statistics(stats)
+        n_changes = sum(1 for _ in ET.parse(lane_changes).getroot().iter("change"))
     return SumoRun(
         records=records,
         collisions=collisions,
@@ -111,6 +116,7 @@ def run_schedule(
         wall_s=wall,
         queues=queues,
         conflict_types=conflicts.by_type,
+        lane_changes=n_changes,
     )
 
 

@@ -11,7 +11,7 @@ from xml.sax.saxutils import quoteattr
 from jaxround.scenario.config import DriverConfig, ScenarioConfig
 from jaxround.scenario.edges import route_edges
 from jaxround.scenario.schedule import Schedule
-from jaxround.sumo_files.netconvert import network_file, plain_xml
+from jaxround.sumo_files.netconvert import connections_xml, network_file, plain_xml
 
 HV_TYPE = "hv"
 AV_TYPE = "av"
@@ -74,7 +74,12 @@ def vtype_xml(type_id: str, d: DriverConfig, dt_s: float) -> str:
 
 
 def routes_xml(cfg: ScenarioConfig, schedule: Schedule) -> str:
-    """The `.rou.xml` text: two vTypes, one route per OD pair, one vehicle per row."""
+    """The `.rou.xml` text: two vTypes, one route per OD pair, one vehicle per row.
+
+    A vehicle departs on its entry's only lane (``departLane="first"``), or
+    on a two-lane entry on SUMO's ``"best"`` lane: the one it can follow
+    furthest along its route without changing, the emptier of equals.
+    """
     n_legs = cfg.n_legs
     dt = cfg.simulation.dt_s
     lines = ["<routes>"]
@@ -89,12 +94,17 @@ def routes_xml(cfg: ScenarioConfig, schedule: Schedule) -> str:
     speed_factor = schedule.class_speed_factors(
         cfg.drivers.hv.speed_dev, cfg.drivers.av.speed_dev
     )
+    depart_lane = [
+        "first" if leg.entry_lanes == 1 else "best" for leg in cfg.network.legs
+    ]
     for i in range(schedule.n_vehicles):
         vtype = AV_TYPE if is_av[i] else HV_TYPE
+        origin = schedule.origin[i]
         lines.append(
             f'  <vehicle id="{vehicle_id(i)}" type="{vtype}" '
-            f'route="{route_id(schedule.origin[i], schedule.destination[i])}" '
-            f'depart="{schedule.depart_s[i]:.2f}" departSpeed="max" departLane="first" '
+            f'route="{route_id(origin, schedule.destination[i])}" '
+            f'depart="{schedule.depart_s[i]:.2f}" departSpeed="max" '
+            f'departLane="{depart_lane[origin]}" '
             f'departPos="base" speedFactor="{speed_factor[i]:.4f}"/>'
         )
     lines.append("</routes>")
@@ -132,7 +142,8 @@ def write_scenario(
 
     The network is netconvert's once per network
     (`jaxround.sumo_files.netconvert.network_file`, the JAX side's cache),
-    copied here beside its plain XML (`<name>.nod.xml`, `<name>.edg.xml`),
+    copied here beside its plain XML (`<name>.nod.xml`, `<name>.edg.xml`,
+    and `<name>.con.xml` where two-lane exits have their lanes joined),
     so that the folder opens alone in sumo-gui. Also writes the schedule as
     `<name>.schedule.npz` for the JAX side.
     """
@@ -144,6 +155,9 @@ def write_scenario(
     nodes, edges = plain_xml(cfg.network)
     (out_dir / f"{stem}.nod.xml").write_text(nodes)
     (out_dir / f"{stem}.edg.xml").write_text(edges)
+    connections = connections_xml(cfg.network)
+    if connections is not None:
+        (out_dir / f"{stem}.con.xml").write_text(connections)
     routes = out_dir / f"{stem}.rou.xml"
     routes.write_text(routes_xml(cfg, schedule))
     sumocfg = out_dir / f"{stem}.sumocfg"

@@ -46,6 +46,7 @@ from jaxround.envs.observe import rich_observation
 from jaxround.envs.rollout import run_until_left, vehicle_records
 from jaxround.envs.roundabout import make
 from jaxround.envs.scripted import NO_COMMAND, RULES, rule_and_value, scripted_command
+from jaxround.envs.supported import check_single_lane
 from jaxround.scenario.config import ScenarioConfig, load_config
 from jaxround.scenario.records import VehicleRecords
 from jaxround.scenario.schedule import Schedule, make_schedule
@@ -316,6 +317,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if (out / "headroom.json").exists():
         parser.error(f"--out: {out / 'headroom.json'} exists; choose another folder")
     cfg = load_config(args.config)
+    check_single_lane(cfg)  # before SUMO runs: the JAX side would refuse it
     rows = variants()
     sumo = run_sumo(cfg, rows, args.seeds, args.workers)
     jax_runs = run_jax(cfg, rows, args.seeds)

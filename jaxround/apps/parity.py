@@ -37,6 +37,7 @@ from jaxround.core.capacity import road_capacity
 from jaxround.envs.rollout import run_until_left, vehicle_records
 from jaxround.envs.roundabout import RoundaboutEnv, make
 from jaxround.envs.slots import redo_on_overflow
+from jaxround.envs.supported import check_single_lane
 from jaxround.scenario.config import ScenarioConfig
 from jaxround.scenario.schedule import make_schedule
 
@@ -158,10 +159,12 @@ def parity_report(
 
     Raises:
         ValueError: a bad controller spec, before anything runs.
+        ConfigError: a two-lane scenario, which JAX does not run yet.
     """
     from jaxround.scenario.config import DRAIN_S
     from sumo_export.runner import run_many
 
+    check_single_lane(cfg)  # before SUMO runs: the JAX side would refuse it
     driver = parse_driver(controller)
     cfg = cfg.with_overrides(penetration=penetration)
     drain_s = DRAIN_S if drain_s is None else drain_s

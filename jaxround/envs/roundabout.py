@@ -35,13 +35,9 @@ from jaxround.envs.actions import command_from_action
 from jaxround.envs.assertiveness import retuned_params
 from jaxround.envs.reward import av_reward, system_reward
 from jaxround.envs.slots import resolve_slots
+from jaxround.envs.supported import check_driver_classes, check_single_lane
 from jaxround.envs.wrappers import auto_reset
-from jaxround.scenario.config import (
-    SHARED_DRIVER_FIELDS,
-    ConfigError,
-    ScenarioConfig,
-    load_config,
-)
+from jaxround.scenario.config import ScenarioConfig, load_config
 from jaxround.scenario.schedule import Schedule as NumpySchedule
 from jaxround.sumo_files.compile import compile_network
 from jaxround.sumo_files.netconvert import network_file
@@ -66,6 +62,7 @@ class RoundaboutEnv:
         max_vehicles: int | str | None = None,
         episode_s: float | None = None,
     ) -> None:
+        check_single_lane(cfg)
         check_driver_classes(cfg)
         if network.n_legs != cfg.n_legs:
             raise ValueError(
@@ -359,20 +356,6 @@ class RoundaboutEnv:
         return observe.rich_observation(self.net, state, params, self.route_destination)
 
 
-def check_driver_classes(cfg: ScenarioConfig) -> None:
-    """The JAX environment drives both classes with the IDM and shares some of
-    their numbers; a config that differs there gets a clear error."""
-    hv, av = cfg.drivers.hv, cfg.drivers.av
-    for name in ("car_follow_model", *SHARED_DRIVER_FIELDS):
-        if getattr(hv, name) != getattr(av, name):
-            raise ConfigError(
-                f"drivers.av.{name}: {getattr(av, name)!r} differs from "
-                f"drivers.hv.{name} {getattr(hv, name)!r}; the JAX environment "
-                "drives both classes as an IDM with these numbers shared (AVs may "
-                "differ in accel, tau, jm_timegap_minor, impatience, speed_dev)"
-            )
-
-
 def make(
     scenario: str | Path | ScenarioConfig = "milan",
     max_vehicles: int | str | None = None,
@@ -393,6 +376,7 @@ def make(
         (env, default params).
     """
     cfg = scenario if isinstance(scenario, ScenarioConfig) else load_config(scenario)
+    check_single_lane(cfg)  # before netconvert runs
     net_path = network_file(cfg, workdir)
     env = RoundaboutEnv(
         cfg, compile_network(net_path, cfg.n_legs), max_vehicles, episode_s

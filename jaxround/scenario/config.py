@@ -11,7 +11,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import math
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -26,58 +25,8 @@ from jaxround.scenario.loader import (
     dataclass_from_dict,
     read_yaml,
 )
+from jaxround.scenario.roads import LegConfig, NetworkConfig
 from jaxround.scenario.safety import SafetyConfig
-
-
-@dataclass(frozen=True)
-class LegConfig:
-    """One approach of the roundabout: an incoming and an outgoing single lane."""
-
-    name: str  # used in SUMO ids: letters, digits and '_' only
-    angle_deg: float  # direction of the leg seen from the ring centre, CCW from east
-    length_m: float  # length of the approach (and of the exit) road
-    speed_limit_mps: float  # speed limit on the approach and the exit
-
-    def validate(self, where: str) -> None:
-        if not self.name or not self.name.replace("_", "").isalnum():
-            raise ConfigError(f"{where}.name: {self.name!r} must be letters, digits, _")
-        check_positive(self.length_m, f"{where}.length_m")
-        check_positive(self.speed_limit_mps, f"{where}.speed_limit_mps")
-
-
-@dataclass(frozen=True)
-class NetworkConfig:
-    """Geometry of a single-lane, single-ring roundabout with 3 to 6 legs."""
-
-    ring_radius_m: float  # radius of the circulating lane's centre line
-    ring_speed_limit_mps: float  # speed limit on the ring
-    legs: tuple[LegConfig, ...]  # in counter-clockwise order
-
-    def validate(self, where: str) -> None:
-        check_positive(self.ring_radius_m, f"{where}.ring_radius_m")
-        check_positive(self.ring_speed_limit_mps, f"{where}.ring_speed_limit_mps")
-        if not 3 <= len(self.legs) <= 6:
-            raise ConfigError(f"{where}.legs: {len(self.legs)} legs, expected 3 to 6")
-        for i, leg in enumerate(self.legs):
-            leg.validate(f"{where}.legs[{i}]")
-        names = [leg.name for leg in self.legs]
-        if len(set(names)) != len(names):
-            raise ConfigError(f"{where}.legs: leg names repeat: {names}")
-        angles = [leg.angle_deg % 360.0 for leg in self.legs]
-        gaps = [
-            (angles[(i + 1) % len(angles)] - a) % 360.0 for i, a in enumerate(angles)
-        ]
-        if abs(sum(gaps) - 360.0) > 1e-6 or min(gaps) < 30.0:
-            raise ConfigError(
-                f"{where}.legs: angles {angles} must increase counter-clockwise "
-                "and be at least 30 degrees apart"
-            )
-        min_arc = min(gaps) * math.pi / 180.0 * self.ring_radius_m
-        if min_arc < 6.0:
-            raise ConfigError(
-                f"{where}.ring_radius_m: {self.ring_radius_m} m leaves only "
-                f"{min_arc:.1f} m of ring between two legs; need at least 6 m"
-            )
 
 
 @dataclass(frozen=True)
@@ -318,7 +267,11 @@ class ScenarioConfig:
         return new
 
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        """The plain data of the scenario (lane counts of 1 left out, as in
+        `NetworkConfig.to_dict`); `config_from_dict` builds it back."""
+        d = dataclasses.asdict(self)
+        d["network"] = self.network.to_dict()
+        return d
 
     def roads_and_drivers_fingerprint(self) -> str:
         """Short hash of what a trained policy depends on: network, drivers, dt
