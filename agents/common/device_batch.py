@@ -17,7 +17,7 @@ The rule:
   H200 (141 GB: 105 GiB) 8,192.
 - **The run keeps its number of updates**: ``total_env_steps`` grows with
   the batch, so the accelerator makes at least as many updates as the CPU
-  run (ppo_milan: 128 updates, 33.5M env-steps at 4,096 roundabouts).
+  run (ppo_milan: 256 updates, 67.1M env-steps at 4,096 roundabouts).
 - **PPO's minibatches and learning rate follow the batch**: with the batch
   S times the CPU's, the minibatches per epoch grow by ``2**ceil(log2(S) / 2)``
   (about sqrt(S): 8x at S = 64), so each minibatch grows by the rest; the

@@ -41,8 +41,8 @@ def test_auto_on_this_machine_is_the_old_number() -> None:
     """The tests run on a CPU: the built-in configs are what they were."""
     cfg, choice = load_trainer_config_and_choice(PPOConfig, "ppo_milan")
     assert cfg.n_envs == 64 and choice is not None and choice.n_envs == 64
-    assert (cfg.total_env_steps, cfg.lr, cfg.minibatches) == (524288, 0.001, 4)
-    assert cfg.num_updates == 128
+    assert (cfg.total_env_steps, cfg.lr, cfg.minibatches) == (1048576, 0.001, 4)
+    assert cfg.num_updates == 256
     assert load_apg_config("apg_milan").n_envs == 64
     assert load_apg_config("apg_milan").total_env_steps == 196608
     numbered, none = trainer_config_and_choice(PPOConfig, {**cfg.to_dict()})
@@ -56,8 +56,8 @@ def test_an_h100_class_gpu_gets_4096_and_as_many_updates() -> None:
     sized, choice = size_for_device(PPOConfig, data, H100)
     cfg = PPOConfig(**{**PPOConfig().to_dict(), **sized}).replace()
     assert cfg.n_envs == 4096
-    assert cfg.num_updates == load_ppo_config("ppo_milan").num_updates == 128
-    assert cfg.total_env_steps == 128 * 4096 * 64 == 33_554_432
+    assert cfg.num_updates == load_ppo_config("ppo_milan").num_updates == 256
+    assert cfg.total_env_steps == 256 * 4096 * 64 == 67_108_864
     assert cfg.minibatches == 32  # 8x the CPU's, each minibatch 8x larger
     assert cfg.lr == pytest.approx(0.001 * 8**0.5)
     assert "4096 roundabouts" in choice.describe() and "H100" in choice.describe()
