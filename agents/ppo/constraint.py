@@ -135,6 +135,18 @@ def measure_uncontrolled(
     return conflicts, arrivals
 
 
+def fixed_ledger(price: float, n_groups: int) -> ConflictLedger:
+    """The ledger of a run without a constraint: the scenario's price in
+    every group for good, no limit (NaN), the counts for the metrics."""
+    zeros = jnp.zeros(n_groups, jnp.float32)
+    return ConflictLedger(
+        price=jnp.full(n_groups, price, jnp.float32),
+        limit=jnp.full(n_groups, jnp.nan, jnp.float32),
+        conflicts=zeros,
+        arrivals=zeros,
+    )
+
+
 def start_ledger(
     settings: ConflictConstraintConfig,
     *,
@@ -157,6 +169,17 @@ def start_ledger(
     return ConflictLedger(price=price, limit=limit, conflicts=zeros, arrivals=zeros)
 
 
+def tally(
+    ledger: ConflictLedger, conflicts: jax.Array, arrivals: jax.Array, decay: float
+) -> ConflictLedger:
+    """The running counts after a rollout's `conflicts` and `arrivals`
+    (float (G,)), the old ones decayed by `decay`; prices unchanged."""
+    return ledger._replace(
+        conflicts=decay * ledger.conflicts + conflicts,
+        arrivals=decay * ledger.arrivals + arrivals,
+    )
+
+
 def update_ledger(
     ledger: ConflictLedger,
     settings: ConflictConstraintConfig,
@@ -165,11 +188,7 @@ def update_ledger(
 ) -> ConflictLedger:
     """One multiplier step after a rollout's `conflicts` and `arrivals`
     (float (G,)); a group with no arrival yet keeps its price."""
-    decay = settings.smoothing
-    ledger = ledger._replace(
-        conflicts=decay * ledger.conflicts + conflicts,
-        arrivals=decay * ledger.arrivals + arrivals,
-    )
+    ledger = tally(ledger, conflicts, arrivals, settings.smoothing)
     excess = (ledger.rate() - ledger.limit) / jnp.maximum(ledger.limit, 1.0)
     step = settings.price_lr * jnp.clip(jnp.nan_to_num(excess), -1.0, 1.0)
     price = ledger.price * jnp.exp(step)
@@ -180,10 +199,12 @@ def update_ledger(
 
 __all__ = [
     "ConflictLedger",
+    "fixed_ledger",
     "group_totals",
     "groups",
     "measure_uncontrolled",
     "start_ledger",
+    "tally",
     "update_ledger",
     "with_prices",
 ]

@@ -159,7 +159,7 @@ class Trainer(BatchTrainer):
         settings = self.config.conflict_constraint
         price = self.scenario.agent.conflict_weight
         if settings is None:  # a fixed price; the rate is still followed
-            settings = ConflictConstraintConfig(limit=(float("nan"),))
+            return constraint.fixed_ledger(price, self.n_groups)
         measured = None
         if not settings.limit:
             b, m = self.config.n_envs, self.env.max_vehicles
@@ -291,10 +291,8 @@ class Trainer(BatchTrainer):
         settings = self.config.conflict_constraint
         if settings is not None:
             return constraint.update_ledger(ledger, settings, conflicts, arrivals)
-        decay = ConflictConstraintConfig().smoothing
-        return ledger._replace(
-            conflicts=decay * ledger.conflicts + conflicts,
-            arrivals=decay * ledger.arrivals + arrivals,
+        return constraint.tally(
+            ledger, conflicts, arrivals, ConflictConstraintConfig().smoothing
         )
 
     def update(self, runner: RunnerState) -> tuple[RunnerState, dict[str, jax.Array]]:
