@@ -18,7 +18,9 @@ observation row. An update is
 3. `epochs` passes of `minibatches` Adam steps on the masked PPO loss. A
    minibatch is a set of whole env steps (all M slots of a roundabout at one
    time, so the centralised input sees the same roundabout it saw in the
-   rollout); non-agent slots are masked out of the loss.
+   rollout); non-agent slots are masked out of the loss;
+4. with a ``conflict_constraint``, one step of each penetration group's
+   conflict price toward its limit (`agents.ppo.constraint`).
 
 The roundabout batch is split over the local devices (`NamedSharding` over a
 1-D mesh named "batch"); with one device this is a no-op. Running
@@ -283,7 +285,9 @@ class Trainer(BatchTrainer):
         runner = runner._replace(params=params, opt_state=opt_state, key=key)
         return runner, jax.tree.map(jnp.mean, aux)
 
-    def follow_conflicts(self, ledger: ConflictLedger, traj: Transition):
+    def follow_conflicts(
+        self, ledger: ConflictLedger, traj: Transition
+    ) -> ConflictLedger:
         """The ledger after a rollout: running counts, and with a constraint
         the prices' multiplier step (`agents.ppo.constraint.update_ledger`)."""
         conflicts = constraint.group_totals(traj.conflicts, self.groups, self.n_groups)
