@@ -15,8 +15,9 @@ import jax
 import jax.numpy as jnp
 
 from jaxround.core import command as traci
-from jaxround.core import finalize, planning, right_of_way
+from jaxround.core import finalize, idm, planning, right_of_way
 from jaxround.core.geometry import NetArrays
+from jaxround.core.insertion import STOP_OFFSET
 from jaxround.core.junction import brake_gap
 from jaxround.core.neighbours import build_tables
 from jaxround.core.params import CarFollowing
@@ -112,10 +113,14 @@ def planned_speed(
         blocked_w = right_of_way.entry_test(
             net, car, veh, start, line, ahead, requests, t, step=step
         )
+        v_hold = right_of_way.next_link_wait(
+            net, car, veh, start, leader, limits, line, ahead, step=step
+        )
     with jax.named_scope("final_speed"):
         v_next = final_speed(
             net, car, veh, start, leader, limits, line, requests,
-            v_follow=v_follow, blocked_w=blocked_w, step=step, command=command,
+            v_follow=v_follow, v_hold=v_hold, blocked_w=blocked_w, step=step,
+            command=command,
         )  # fmt: skip
     return v_next, requests.regs, blocked_w > 0.5, leader.slot, leader.gap
 
@@ -131,6 +136,7 @@ def final_speed(
     requests: Requests,
     *,
     v_follow: jax.Array,
+    v_hold: jax.Array,
     blocked_w: jax.Array,
     step: Stepping,
     command: jax.Array | None,
@@ -138,7 +144,12 @@ def final_speed(
     """The speed at the end of the step, float (M,) (0 for empty slots):
     the safe speed, stopping at the yield line where the entry is blocked or
     still out of sight, bounded by MSCFModel::finalizeSpeed; a TraCI command
-    then applied as executeMove's processTraCISpeedControl does."""
+    then applied as executeMove's processTraCISpeedControl does.
+
+    Args:
+        v_hold: (M,) `right_of_way.next_link_wait`, the speed of a vehicle
+            that could still brake for its open entry.
+    """
     speed, dt = veh.speed, step.dt
     seen = line.to_line
     too_late = ~line.can_brake & (seen < brake_gap(speed, car.emergency_decel, 0.0, dt))
@@ -152,6 +163,10 @@ def final_speed(
         jnp.where(leader_before_line, leader.v_follow, jnp.inf),
     )
     v_safe = jnp.minimum(jnp.minimum(v_follow, limits.v_limits), limits.v_free)
+    # an open entry it could still brake for: no request for the links after
+    # it, so it plans to be able to stop before the ring's next link
+    v_safe = jnp.where(requests.slowed, v_hold, v_safe)
+    v_safe = cross_or_stop(car, veh, start, line, requests, v_safe, step=step)
     v_safe = blend(must_stop_w, v_before_line, v_safe)
     v_next = finalize.next_speed(
         speed, v_safe, start.v_lane, accel=car.accel, decel=car.decel,
@@ -164,3 +179,37 @@ def final_speed(
         )  # fmt: skip
         v_next = finalize.snap_speed(v_next, dt)
     return jnp.where(veh.active, v_next, 0.0)
+
+
+def cross_or_stop(
+    car: CarFollowing,
+    veh: Vehicles,
+    start: StartSpeeds,
+    line: YieldLine,
+    requests: Requests,
+    v_safe: jax.Array,
+    *,
+    step: Stepping,
+) -> jax.Array:
+    """processLinkApproaches' vSafeMin before an open entry within sight,
+    float (M,): a vehicle that plans to slow below its speed and below what
+    crossing the entry needs (``vSafeMin``: the distance in one step, the
+    entry's vLinkPass, the fastest next speed) while it could still stop
+    there, stops before the entry instead ("cannot drive across a link so we
+    need to stop before it": at most decel, down to the stop speed)."""
+    speed, dt = veh.speed, step.dt
+    seen = line.to_line
+    open_in_sight = line.before_line & ~requests.beyond_visibility
+    v_pass = jnp.minimum(jnp.minimum(start.v_start, requests.approach_cap), line.v_link)
+    v_safe_min = jnp.minimum(
+        jnp.minimum((seen + STOP_OFFSET) / dt, v_pass), start.v_max_next
+    )
+    cannot_cross = (
+        open_in_sight & line.can_brake & (v_safe + 1e-6 < v_safe_min) & (v_safe < speed)
+    )
+    v_stop = idm.idm_stop_speed(
+        speed, seen, start.v_lane, vtype=car.idm, dt=dt,
+        n_substeps=step.n_substeps, action_step=step.action_step,
+    )  # fmt: skip
+    braked = jnp.maximum(jnp.maximum(speed - car.decel * dt, 0.0), v_stop)
+    return jnp.where(cannot_cross, jnp.minimum(v_safe, braked), v_safe)

@@ -50,6 +50,8 @@ class NetArrays:
     prev_lane_length: jax.Array  # (R, G) length of the lane before it
     normal_before: jax.Array  # (R, G) normal metres up to the link before it
     internal_before: jax.Array  # (R, G) internal metres up to the link before it
+    next_link_index: jax.Array  # (R,) route index k of the first link after the entry
+    next_link_offset: jax.Array  # (R,) where it starts along the route (+inf: none)
 
     @classmethod
     def from_network(cls, net: CompiledNetwork) -> NetArrays:
@@ -82,6 +84,18 @@ class NetArrays:
                 if merges[r, k]:
                     nxt = k
                 merge_index[r, k] = nxt
+        # the first link after the entry that leaves a normal lane (the ring
+        # lane after the entry's internal lane ends there): SUMO's request
+        # for it is what a vehicle that slowed down for its entry withdraws
+        next_link = np.full(r_n, k_n - 1, np.int32)
+        for r in range(r_n):
+            inner = np.nonzero(is_int[r])[0]
+            later = inner[inner > inner[0] + 1] if inner.size else inner
+            if later.size:
+                next_link[r] = later[0]
+        next_offset = np.where(
+            is_int[np.arange(r_n), next_link], start[np.arange(r_n), next_link], np.inf
+        )
         return cls(
             lane_length=jnp.asarray(net.lane_length, f),
             lane_speed=jnp.asarray(net.lane_speed, f),
@@ -111,6 +125,8 @@ class NetArrays:
             prev_lane_length=jnp.asarray(net.lane_length[prev_lane], f),
             normal_before=jnp.asarray(normal_cum[rows, conflict_index - 1], f),
             internal_before=jnp.asarray(internal_cum[rows, conflict_index - 1], f),
+            next_link_index=jnp.asarray(next_link),
+            next_link_offset=jnp.asarray(next_offset, f),
         )
 
 

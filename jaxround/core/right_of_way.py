@@ -15,6 +15,7 @@ import jax.numpy as jnp
 
 from jaxround.core import idm
 from jaxround.core.geometry import NetArrays
+from jaxround.core.insertion import STOP_OFFSET
 from jaxround.core.junction import (
     brake_gap,
     entry_approach,
@@ -135,13 +136,15 @@ class Requests(NamedTuple):
     (M,) the cap leaders on the approach put on the arrival speed;
     candidates int (C,) the slots whose entry is tested, candidate_ok bool
     (C,) a vehicle is there; beyond_visibility bool (M,) still too far from
-    the line to see the ring."""
+    the line to see the ring; slowed bool (M,) could still brake for its
+    entry, so it requests no later link (SUMO's slowedDownForMinor)."""
 
     regs: Registrations
     approach_cap: jax.Array
     candidates: jax.Array
     candidate_ok: jax.Array
     beyond_visibility: jax.Array
+    slowed: jax.Array
 
 
 def registrations(
@@ -159,10 +162,11 @@ def registrations(
     v_follow: jax.Array,
     step: Stepping,
 ) -> Requests:
-    """SUMO's setApproachingForAllLinks. A vehicle that could still stop and
-    would find its entry closed (judged on the previous step's
-    registrations) withdraws its requests on later links; so does one still
-    beyond the visibility point (planMove).
+    """SUMO's setApproachingForAllLinks. A vehicle that could still brake
+    for its entry and would find it closed (judged on the previous step's
+    registrations) has slowed down for it (planMoveInternal's
+    slowedDownForMinor) and requests no link after it; so does one still
+    beyond the visibility point. Its speed then follows (`next_link_wait`).
 
     Args:
         v_follow: (M,) the follow speed, the link leaders at the next merge
@@ -210,7 +214,7 @@ def registrations(
         leave_follow=(through_has, speed[through_slot], through_gap, follow),
         leave_cap=ahead.via_cap,
     )  # fmt: skip
-    return Requests(regs, approach_cap, cand, cand_ok, beyond)
+    return Requests(regs, approach_cap, cand, cand_ok, beyond, slowed)
 
 
 def entry_test(
@@ -246,3 +250,51 @@ def entry_test(
     )  # fmt: skip
     blocked_w = jnp.zeros(veh.pos.shape[0]).at[cand].max(weight * requests.candidate_ok)
     return blocked_w * line.before_line
+
+
+#: SUMO's DIST_TO_STOPLINE_EXPECT_PRIORITY (MSVehicle.cpp): where a vehicle
+#: plans to stop before a major link (the jmStoplineGap default, m).
+MAJOR_STOP_OFFSET = 1.0
+
+
+def next_link_wait(
+    net: NetArrays,
+    car: CarFollowing,
+    veh: Vehicles,
+    start: StartSpeeds,
+    leader: OwnLeader,
+    limits: LaneLimits,
+    line: YieldLine,
+    ahead: LookAhead,
+    *,
+    step: Stepping,
+) -> jax.Array:
+    """vLinkWait of the first link after the entry that leaves a normal lane
+    (into the ring's next junction), float (M,): the speed of a vehicle that
+    slowed down for its entry (`Requests.slowed`). Its request for that link
+    is withdrawn, so MSVehicle::processLinkApproaches ends there with
+    ``vSafe = vLinkWait``: the running speed of planMoveInternal up to that
+    link (the limits of the lanes before it, the own leader before it, the
+    link leaders at the entry and at that link), and the stop before it
+    (a major link: ``laneStopOffset = min(1 m, seen - brakeGap)``)."""
+    route, pos, speed, dt = veh.route, veh.pos, veh.speed, step.dt
+    k_next = net.next_link_index[route]  # (M,)
+    link_at = net.next_link_offset[route]
+    seen = link_at - pos
+    brake_dist = brake_gap(speed, car.decel, 0.0, dt)
+    offset = jnp.where(
+        seen >= brake_dist,
+        jnp.minimum(MAJOR_STOP_OFFSET, seen - brake_dist),
+        MAJOR_STOP_OFFSET,
+    )
+    stop_dist = jnp.maximum(seen - jnp.maximum(offset, STOP_OFFSET), 0.0)
+    v_stop = idm.idm_stop_speed(
+        speed, stop_dist, start.v_lane, vtype=car.idm, dt=dt,
+        n_substeps=step.n_substeps, action_step=step.action_step,
+    )  # fmt: skip
+    lanes_before = jnp.arange(limits.per_lane.shape[1])[None, :] < k_next[:, None]
+    v_run = jnp.min(jnp.where(lanes_before, limits.per_lane, jnp.inf), axis=1)
+    v_run = jnp.minimum(jnp.minimum(v_run, start.v_start), line.v_link)
+    v_run = jnp.where(leader.back < link_at, jnp.minimum(v_run, leader.v_follow), v_run)
+    at_next = jnp.take_along_axis(ahead.v_link_k, k_next[:, None], axis=1)[:, 0]
+    return jnp.minimum(jnp.minimum(v_run, at_next), v_stop)
