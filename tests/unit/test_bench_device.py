@@ -33,3 +33,17 @@ def test_the_device_check_runs_each_step_within_its_limit(tmp_path) -> None:
         "run", [sys.executable, "-c", "import time; time.sleep(5)"], 1, None
     )
     assert slow["exit_status"] is None and slow["seconds"] < 5
+
+
+def test_the_device_check_reads_the_bench_json_after_stray_lines() -> None:
+    import json
+
+    from jaxround.apps.bench.device_check import _json_document
+
+    # libsumo warns on stdout in every SUMO worker beside another pyarrow
+    stdout = (
+        "Warning! pyarrow is installed\n Try to uninstall\n"
+        '{\n "device": {"kind": "H100"}\n}\n'
+    )
+    assert json.loads(_json_document(stdout)) == {"device": {"kind": "H100"}}
+    assert _json_document("no document") == "no document"

@@ -57,7 +57,7 @@ def run_step(
     except subprocess.TimeoutExpired as err:
         code, stdout, stderr = None, _text(err.stdout), _text(err.stderr)
     if name == "bench" and code == 0 and json_path is not None:
-        json_path.write_text(stdout)
+        json_path.write_text(_json_document(stdout))
     return {
         "name": name,
         "command": argv[1:],
@@ -68,6 +68,17 @@ def run_step(
         "stderr_tail": stderr[-3000:],
         "stdout_tail": "" if name == "bench" else stdout[-3000:],
     }
+
+
+def _json_document(stdout: str) -> str:
+    """The JSON document of ``bench --json`` from its stdout: from the first
+    line that opens an object (libraries in worker processes may print
+    warnings to stdout before it, as libsumo does beside another pyarrow)."""
+    lines = stdout.splitlines(keepends=True)
+    for i, line in enumerate(lines):
+        if line.startswith("{"):
+            return "".join(lines[i:])
+    return stdout
 
 
 def _text(data: bytes | str | None) -> str:
@@ -90,7 +101,10 @@ def main(argv: list[str] | None = None) -> int:
         step = run_step(name, command, limit, json_path)
         record["steps"].append(step)
         if name == "bench" and step["json"]:
-            record["device"] = json.loads(json_path.read_text()).get("device")
+            try:
+                record["device"] = json.loads(json_path.read_text()).get("device")
+            except json.JSONDecodeError as err:
+                step["json_error"] = str(err)
         print(f"  exit {step['exit_status']} in {step['seconds']} s", file=sys.stderr)
         (args.out / "device_check.json").write_text(json.dumps(record, indent=1))
     return 0 if all(s["exit_status"] == 0 for s in record["steps"]) else 1
