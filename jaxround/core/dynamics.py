@@ -143,7 +143,8 @@ def final_speed(
 ) -> jax.Array:
     """The speed at the end of the step, float (M,) (0 for empty slots):
     the safe speed, stopping at the yield line where the entry is blocked or
-    still out of sight, bounded by MSCFModel::finalizeSpeed; a TraCI command
+    still out of sight, held before the ring's next link after an entry the
+    vehicle slowed down for, bounded by MSCFModel::finalizeSpeed; a TraCI command
     then applied as executeMove's processTraCISpeedControl does.
 
     Args:
