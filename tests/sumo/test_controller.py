@@ -199,12 +199,16 @@ def compare(
 
 
 def both_simulators(
-    scenario: dict[str, Any], use_policy: bool, rows: int, window: int
+    scenario: dict[str, Any],
+    use_policy: bool,
+    rows: int,
+    window: int,
+    speed_tol: float = 1e-3,
 ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """Run JAX and SUMO, compare, print the figures and check what both tests
     share: at least `rows` observation rows within OBS_TOL, identical traffic
-    for `window` steps with AV speeds within 1e-3 m/s, no collision, no slot
-    overflow. Returns (the comparison, SUMO's rows)."""
+    for `window` steps with AV speeds within `speed_tol` m/s, no collision, no
+    slot overflow. Returns (the comparison, SUMO's rows)."""
     jax_rows = jax_trace(scenario, use_policy)
     sumo_rows, ctrl, run = sumo_trace(scenario, use_policy)
     result = compare(jax_rows, sumo_rows)
@@ -219,7 +223,7 @@ def both_simulators(
     assert result["rows_compared"] >= rows
     assert result["obs_err"].max() < OBS_TOL
     assert result["window"] >= window
-    assert win.max() < 1e-3
+    assert win.max() < speed_tol
     assert run.collisions == 0
     assert ctrl.report()["overflow_vehicle_steps"] == 0
     return result, sumo_rows
@@ -234,10 +238,15 @@ def test_observations_match_jax_with_uncontrolled_avs(scenario) -> None:
 
 @pytest.mark.sumo
 def test_policy_drives_avs_as_in_jax(scenario) -> None:
-    # measured: 153 rows within 1.4e-6; 412 AV-steps within 5.4e-5 m/s over
-    # the 87 steps before an HV decides otherwise at a yield line; 92% of
-    # the AV-steps of the first 100 within 1e-4 m/s
-    result, sumo_rows = both_simulators(scenario, True, rows=120, window=60)
+    # measured: 153 rows within 1.1e-6; traffic identical for 139 steps (87
+    # before the JAX step held a vehicle that slowed down for its entry before
+    # the ring's next link, as SUMO does); 94% of the 514 AV-steps of the
+    # first 100 within 1e-4 m/s. The largest errors come late: a float32
+    # difference of 2e-5 m/s at step 43, fed back through the policy's
+    # observations, grows to 1.5e-3 m/s by step 100
+    result, sumo_rows = both_simulators(
+        scenario, True, rows=120, window=120, speed_tol=3e-3
+    )
     assert result["av_speed_err_window"].size >= 300
     assert np.mean(result["av_speed_err"] < 1e-4) > 0.85
     # the commands bind: the AVs drive otherwise than uncontrolled ones
