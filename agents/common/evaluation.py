@@ -329,7 +329,8 @@ SUMMARY_COLUMNS = (
 
 
 def summary_rows(results: dict[str, dict[float, dict[str, Any]]]) -> list[list[str]]:
-    """Rows of `SUMMARY_COLUMNS`: per penetration, the policy then the baseline."""
+    """Rows of `SUMMARY_COLUMNS`: per penetration, the policy, then the
+    uncontrolled baseline, then the best constant where it was run."""
     from jaxround.analysis.report import percent_label
 
     def cell(x: Any, digits: int = 2) -> str:
@@ -337,7 +338,7 @@ def summary_rows(results: dict[str, dict[float, dict[str, Any]]]) -> list[list[s
 
     rows = []
     for p in sorted(results["policy"]):
-        for driver in DRIVERS:
+        for driver in (d for d in (*DRIVERS, "best_constant") if d in results):
             m = results[driver][p]
             rows.append(
                 [

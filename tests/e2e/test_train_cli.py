@@ -191,7 +191,10 @@ def test_evaluate_json(
     assert main(args) == 0
     report = json.loads(capsys.readouterr().out)
     results = report["results"]
-    assert set(results) == {"policy", "uncontrolled"}
+    # the scenario is Milan's: its best constant is the third driver
+    assert set(results) == {"policy", "uncontrolled", "best_constant"}
+    assert report["best_constant"]["source"] == "configs/best_constant/milan.json"
+    assert (out / "jax_best_constant_table3.md").exists()
     for driver in results.values():
         assert set(driver) == {"0", "50", "100"}
         assert driver["50"]["av"]["n_vehicles"] == 6
@@ -219,7 +222,7 @@ def test_evaluate_compares_the_same_vehicles(
     args = [
         "evaluate", "--policy", str(first_run), "--config", str(scenario),
         "--penetrations", "50", "--max-vehicles", "16", "--drain-s", "0",
-        "--score-scale", "run", "--json",
+        "--score-scale", "run", "--json", "--best-constant", "none",
     ]  # fmt: skip
     assert main(args) == 0
     captured = capsys.readouterr()
@@ -229,6 +232,7 @@ def test_evaluate_compares_the_same_vehicles(
     assert "vehicles still outside at the cap" in captured.err
     for r in report["outside_at_cap"]:
         assert f"{r['driver']} 50% AVs seed 0: {r['not_arrived']}" in captured.err
+    assert set(report["results"]) == set(DRIVERS)  # --best-constant none
     policy, baseline = (report["results"][d]["50"]["all"] for d in DRIVERS)
     assert policy["n_compared"] == baseline["n_compared"] > 0
     assert policy["n_compared"] <= min(policy["n_arrived"], baseline["n_arrived"])
@@ -241,6 +245,10 @@ def test_evaluate_refuses(
     assert "give --out DIR" in capsys.readouterr().err
     assert main(["evaluate", "--policy", str(tmp_path / "none")]) == 2
     assert "does not exist" in capsys.readouterr().err
+    missing = tmp_path / "no_constant.json"
+    argv = ["evaluate", "--policy", str(first_run), "--best-constant", str(missing)]
+    assert main(argv) == 2
+    assert "--best-constant" in capsys.readouterr().err
 
 
 def test_n_envs_auto_on_the_cpu_is_the_run_of_64(tmp_path: Path, capsys) -> None:

@@ -1,7 +1,7 @@
 """The `jaxround` command: one entry point, one subcommand per job.
 
-The subcommands live in `simulate`, `training`, `calibration`, `search` and
-`jaxround.study.cli`; each module adds its own parsers.
+The subcommands live in `simulate`, `training`, `evaluation`, `calibration`,
+`search`, `safety` and `jaxround.study.cli`; each module adds its own parsers.
 """
 
 from __future__ import annotations
@@ -10,7 +10,14 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from jaxround.apps.cli import calibration, safety, search, simulate, training
+from jaxround.apps.cli import (
+    calibration,
+    evaluation,
+    safety,
+    search,
+    simulate,
+    training,
+)
 from jaxround.apps.cli.arguments import UsageError
 from jaxround.scenario.config import ConfigError
 
@@ -22,6 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     training.add_parsers(sub)
+    evaluation.add_parsers(sub)
     simulate.add_parsers(sub)
     calibration.add_parsers(sub)
     search.add_parsers(sub)

@@ -1,4 +1,5 @@
-"""Commands around the policy: `run` (the main job), `train`, `evaluate`, `export`."""
+"""Commands around the policy: `run` (the main job), `train`, `export` (`evaluate`
+lives in `jaxround.apps.cli.evaluation`)."""
 
 from __future__ import annotations
 
@@ -6,52 +7,20 @@ import argparse
 import sys
 from pathlib import Path
 
-from jaxround.analysis.report import percent_label
 from jaxround.apps.cli.arguments import (
     UsageError,
     best_constant_of,
     best_constant_option,
     config_option,
-    drain_option,
     fresh_output_dir,
     non_negative_int,
-    percent_list,
     positive_int,
-    print_json,
-    score_scale_option,
     seeds_of,
-    slots_option,
     warn_outside_at_cap,
-    warn_slot_overflow,
     workers_option,
 )
 from jaxround.apps.pipeline import QUICK_TRAIN_STEPS
-from jaxround.scenario.config import ScenarioConfig, load_config
-
-
-def evaluate_in_sumo(
-    args: argparse.Namespace, cfg: ScenarioConfig, seeds: list[int], out: Path
-) -> None:
-    """`jaxround evaluate --sim sumo`: SUMO, with the JAX figures beside."""
-    from jaxround.apps.pipeline import evaluate_everywhere, headline
-
-    say = (lambda msg: None) if args.json else (lambda m: print(m, file=sys.stderr))
-    try:
-        result = evaluate_everywhere(
-            cfg, args.policy, args.penetrations, seeds, out, workers=args.workers,
-            progress=not args.json, say=say, drain_s=args.drain_s,
-        )  # fmt: skip
-    except (OSError, ValueError) as err:
-        raise UsageError(f"--policy {args.policy}: {err}") from None
-    warn_slot_overflow(result, "evaluate (JAX)")
-    warn_outside_at_cap(result, "evaluate")
-    if args.json:
-        print_json({k: v for k, v in result.items() if k != "tables"})
-        return
-    warn_slot_overflow(result, "run (JAX evaluation)")
-    print(result["tables"])
-    print(headline(result))
-    print(f"wrote {out / 'evaluation.json'}, tables and sumo_policy.png in {out}")
+from jaxround.scenario.config import load_config
 
 
 def cmd_run(args: argparse.Namespace) -> None:
@@ -223,61 +192,6 @@ def join_processes(args: argparse.Namespace) -> bool:
     return args.process_id == 0
 
 
-def cmd_evaluate(args: argparse.Namespace) -> None:
-    from agents.common.compilation import enable_compilation_cache
-    from agents.common.evaluation import SUMMARY_COLUMNS, evaluate_policy, summary_rows
-    from agents.common.export import load_policy
-    from jaxround.analysis.report import markdown_table, write_json, write_tables
-
-    try:
-        _, layout = load_policy(args.policy)
-    except (OSError, ValueError) as err:
-        raise UsageError(f"--policy {args.policy}: {err}") from None
-    cfg = load_config(args.config or layout.scenario or None)
-    if args.sim == "sumo" and args.out is None:
-        raise UsageError("--sim sumo writes tables and a figure: give --out DIR")
-    out = (
-        None
-        if args.out is None
-        else fresh_output_dir(args.out, args.force, ["evaluation.json"])
-    )
-    seeds = seeds_of(cfg, args.seeds)
-    enable_compilation_cache()
-    if args.sim == "sumo":
-        evaluate_in_sumo(args, cfg, seeds, out)
-        return
-    try:
-        summary = evaluate_policy(
-            args.policy, cfg, args.penetrations, seeds, max_vehicles=args.max_vehicles,
-            drain_s=args.drain_s, score_scale=args.score_scale,
-        )  # fmt: skip
-    except ValueError as err:
-        raise UsageError(f"--policy {args.policy}: {err}") from None
-    warn_slot_overflow(summary, "evaluate")
-    warn_outside_at_cap(summary, "evaluate")
-    results = summary["results"]
-    by_label = {
-        driver: {percent_label(p): m for p, m in per_p.items()}
-        for driver, per_p in results.items()
-    }
-    report = {**summary, "results": by_label}
-    if out is not None:
-        write_json(report, out / "evaluation.json")
-        scale = summary["score_scale"]
-        write_tables(results["policy"], out, "jax_policy", scale)
-        write_tables(results["uncontrolled"], out, "jax_uncontrolled", scale)
-    if args.json:
-        print_json(report)
-        return
-    print(
-        f"{cfg.name}, seeds {seeds}, JAX; AVs driven by the policy and, as the "
-        "baseline, uncontrolled (their IDM vType)\n"
-    )
-    print(markdown_table(SUMMARY_COLUMNS, summary_rows(results)))
-    if out is not None:
-        print(f"wrote {out / 'evaluation.json'} and tables")
-
-
 def cmd_export(args: argparse.Namespace) -> None:
     from agents.common.export import load_policy, policy_paths
 
@@ -363,35 +277,6 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
         "--coordinator", default=None, help="HOST:PORT where process 0 listens"
     )
     p.set_defaults(func=cmd_train)
-
-    p = sub.add_parser(
-        "evaluate", help="a trained policy over penetrations, against uncontrolled AVs"
-    )
-    p.add_argument(
-        "--config", default=None,
-        help="scenario YAML or built-in name (default: the policy's scenario)",
-    )  # fmt: skip
-    p.add_argument(
-        "--policy", type=Path, required=True,
-        help="policy.npz / policy.json, or a training folder",
-    )  # fmt: skip
-    p.add_argument(
-        "--sim", choices=("jax", "sumo"), default="jax",
-        help="jax (default), or sumo: SUMO through libsumo, JAX figures beside",
-    )  # fmt: skip
-    workers_option(p)
-    p.add_argument(
-        "--penetrations", type=percent_list, default=percent_list("0,10,...,100"),
-        help="AV shares in percent, e.g. 0,10,...,100 (the default) or 0,50,100",
-    )  # fmt: skip
-    p.add_argument("--seeds", type=positive_int, default=1, help="number of seeds")
-    slots_option(p)
-    drain_option(p)
-    score_scale_option(p)
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--out", type=Path, default=None, help="also write files here")
-    p.add_argument("--force", action="store_true", help="overwrite evaluation.json")
-    p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("export", help="copy a training run's policy (npz + json)")
     p.add_argument("run_dir", type=Path, help="a `jaxround train` folder")
