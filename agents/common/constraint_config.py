@@ -9,6 +9,8 @@
       price_min: 1.0          # the price stays within [price_min, price_max],
       price_max: 5000.0       # vehicle-seconds per conflict
       measure_episodes: 2     # episodes of the batch that measure the vType's rate
+                              # (2 are noisy, +-30%; more made ppo_milan no
+                              # safer at 50% AVs: docs/safety.md)
       smoothing: 0.9          # decay of the running count the rate is taken from
 
 The price of a conflict (`agent.conflict_weight` of the system reward) then

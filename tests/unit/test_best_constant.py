@@ -21,15 +21,22 @@ from jaxround.scenario.config import ConfigError, load_config
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_milan_file_is_what_its_search_wrote() -> None:
-    # docs/safety/search/p100.json is the search's result (the best safe
+@pytest.mark.parametrize(("name", "search", "percent"), [
+    ("milan", "p100", 100), ("milan_p50", "p50", 50),
+])  # fmt: skip
+def test_milan_files_are_what_their_search_wrote(
+    name: str, search: str, percent: int
+) -> None:
+    # docs/safety/search/<search>.json is the search's result (the best safe
     # constant: the time-gap floor and the conflict limit); the file is the
     # search's own best_constant.json of it, with the command that ran it
-    result = json.loads((ROOT / "docs/safety/search/p100.json").read_text())
-    saved = json.loads(builtin_path("milan").read_text())
+    result = json.loads((ROOT / f"docs/safety/search/{search}.json").read_text())
+    saved = json.loads(builtin_path(name).read_text())
     assert best_constant_file(result, saved["command"]) == saved
+    assert saved["found"]["penetration"] == percent / 100
     assert saved["command"].startswith(
-        "jaxround search --out DIR --config milan --penetration 100 --window-s 600 "
+        f"jaxround search --out DIR --config milan --penetration {percent} "
+        "--window-s 600 "
     )
     assert saved["command"].endswith("--conflict-limit vtype")
     assert saved["setting"]["tau"] >= load_config("milan").safety.min_av_tau_s
