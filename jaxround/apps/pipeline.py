@@ -315,6 +315,9 @@ def main_job(
         "n_steps": train_config.n_steps,
         "device_batch": None if device_choice is None else device_choice.to_dict(),
     }
+    if "conflict_summary" in trained:  # constrained PPO: its limits and prices
+        for key in ("conflict_limit_per_1000", "conflict_price", "conflict_summary"):
+            result["training"][key] = trained[key]
     result["wall_time_s"] = round(time.time() - started, 1)
     # the run's own files by their place in it, as the results travel with it
     result["policy"] = os.path.relpath(policy, out)

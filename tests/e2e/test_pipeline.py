@@ -39,6 +39,7 @@ def finished_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
         "action": "assertiveness",
         "reward": "system",
         "trip_noise": True,
+        "conflict_constraint": {"measure_episodes": 1},
     }
     (root / "ppo.yaml").write_text(yaml.safe_dump(ppo))
     out = root / "run"
@@ -84,6 +85,12 @@ def test_main_job_writes_every_result(finished_run: Path) -> None:
             results[sim]["0"]["all"]["mean_crossing_time_s"]
         )
     assert results["training"]["updates"] == 2
+    # the conflict constraint's limit and price per share, as training ended
+    training = results["training"]
+    assert len(training["conflict_limit_per_1000"]) == len(training["conflict_price"])
+    assert all(x >= 0 for x in training["conflict_limit_per_1000"])
+    assert all(x >= 1 for x in training["conflict_price"])  # price_min
+    assert "conflicts per 1,000 vehicles allowed" in training["conflict_summary"]
     # the JAX evaluation's slots: what the traffic needs, none overflowed
     assert results["max_vehicles"] < 76 and results["jax_slot_overflow"] == 0
     assert results["jax_not_arrived"] == 0 and results["cap_s"] > 0

@@ -60,6 +60,8 @@ def cmd_run(args: argparse.Namespace) -> None:
     warn_outside_at_cap(result, "run")
     print(result["tables"])
     print(headline(result))
+    if "conflict_summary" in result["training"]:
+        print(f"training: {result['training']['conflict_summary']}")
     print(
         f"wrote {out / 'results.json'}, the tables and figures in {out}, the "
         f"training run in {out / TRAIN_DIR} ({result['wall_time_s']:.0f} s in all)"
