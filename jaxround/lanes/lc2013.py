@@ -1,0 +1,353 @@
+"""One vehicle's wish to change lanes: SUMO 1.28's `MSLCM_LC2013`, in JAX.
+
+`wants_change` is `MSLCM_LC2013::_wantsChange` for one direction (Euler
+update, one lane per vehicle, no stops, no TraCI), branch by branch in
+SUMO's order: the look-ahead distance, the urgent strategic change (and its
+negotiation, `jaxround.lanes.inform`), the reasons to stay, the roundabout
+bonus, cooperation, speed gain to the right with keep-right, speed gain to
+the left, and the non-urgent strategic change. `check_change` is
+`MSLaneChanger::checkChange`'s safety test, `patch_speed` the next step's
+`_patchSpeed`, `prepare_step` and `changed` the resets between.
+
+Everything is element-wise over the vehicles' arrays (...), so a changer can
+decide one vehicle at a time (SUMO's order) or many at once.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxround.lanes import actions as lca
+from jaxround.lanes import follow
+from jaxround.lanes.inform import inform_follower, inform_leader
+from jaxround.lanes.params import LaneChangeParams
+from jaxround.lanes.views import Ego, LaneQ, Neighbour
+
+#: MSLCM_LC2013.cpp's constants.
+LOOK_FORWARD = 10.0  # s
+LOOK_AHEAD_SPEED_MEMORY = 0.9
+RELGAIN_NORMALIZATION_MIN_SPEED = 10.0  # m/s
+URGENCY = 2.0
+KEEP_RIGHT_TIME = 5.0  # s
+TURN_LANE_DIST = 200.0  # m
+NUMERICAL_EPS = 0.001
+
+
+class Wish(NamedTuple):
+    """The outcome of one `wants_change` call.
+
+    Attributes:
+        state: int32 bits (`jaxround.lanes.actions`), the blocked bits not included.
+        speed_gain_probability, keep_right_probability, look_ahead_speed:
+            the updated memory.
+        own_advices: (3,) advices the vehicle gives itself (NaN: none).
+        leader_speed, leader_bits, follower_speed, follower_bits: what it
+            tells the target lane's leader and follower (NaN / 0: nothing).
+    """
+
+    state: jax.Array
+    speed_gain_probability: jax.Array
+    keep_right_probability: jax.Array
+    look_ahead_speed: jax.Array
+    own_advices: jax.Array
+    leader_speed: jax.Array
+    leader_bits: jax.Array
+    follower_speed: jax.Array
+    follower_bits: jax.Array
+
+
+def check_change(
+    direction: int, ego: Ego, neigh_lead: Neighbour, neigh_follow: Neighbour,
+    lc: LaneChangeParams,
+) -> jax.Array:  # fmt: skip
+    """`MSLaneChanger::checkChange`'s safety test: blocked (bits) where a
+    target-lane neighbour overlaps or is closer than its secure gap times
+    1 / lcAssertive (speeds of this step, one action step per step)."""
+    by_leader = (
+        lca.BLOCKED_BY_RIGHT_LEADER if direction < 0 else lca.BLOCKED_BY_LEFT_LEADER
+    )
+    by_follower = (
+        lca.BLOCKED_BY_RIGHT_FOLLOWER if direction < 0 else lca.BLOCKED_BY_LEFT_FOLLOWER
+    )
+    nf, nl = neigh_follow, neigh_lead
+    follower_overlaps = nf.exists & (nf.gap < 0)
+    leader_overlaps = nl.exists & (nl.gap < 0)
+    back_gap = follow.secure_gap(nf.driver, nf.speed, ego.speed) * lc.safety_factor
+    front_gap = follow.secure_gap(ego.driver, ego.speed, nl.speed) * lc.safety_factor
+    follower_blocks = follower_overlaps | (nf.exists & (nf.gap < back_gap))
+    leader_blocks = leader_overlaps | (nl.exists & (nl.gap < front_gap))
+    return (
+        jnp.where(follower_blocks, by_follower, 0)
+        | jnp.where(leader_blocks, by_leader, 0)
+        | jnp.where(follower_overlaps | leader_overlaps, lca.OVERLAPPING, 0)
+    ).astype(jnp.int32)
+
+
+def accelerating(vehicle: Neighbour) -> jax.Array:
+    """Whether SUMO sees the vehicle accelerate (``getAcceleration() > 0``).
+
+    A vehicle that approaches its desired speed on a free road accelerates
+    by ever smaller amounts, forever in SUMO's doubles; in float32 its speed
+    stops a few units in the last place short of the desired speed and its
+    acceleration reads 0. Such a vehicle (within 32 of those units) counts
+    as accelerating, as in SUMO; in float64 the margin is negligible."""
+    short = vehicle.v_max - vehicle.speed
+    margin = 32 * jnp.finfo(jnp.result_type(vehicle.speed)).eps * vehicle.v_max
+    stalled = (vehicle.accel == 0) & (short > 0) & (short < margin)
+    return vehicle.exists & ((vehicle.accel > 0) | stalled)
+
+
+def anticipate_follow_speed(
+    ego: Ego, leader: Neighbour, dist: jax.Array, v_max: jax.Array,
+    accelerating: jax.Array, dt: float,
+) -> jax.Array:  # fmt: skip
+    """`anticipateFollowSpeed`: the speed a lane will allow, capped at
+    ``v_max``: with an accelerating leader in play the IDM's speed one second
+    on, else the generic safe speed behind the leader (or to stop within
+    ``dist``, the lane's LaneQ length)."""
+    driver, v = ego.driver, ego.speed
+    v_1s = v + driver.accel - driver.accel * dt
+    accelerating_free = follow.follow_speed(driver, v_1s, dist, 0.0, ego.v_max, dt)
+    accelerating_led = follow.follow_speed(
+        driver, v_1s, leader.gap, leader.speed, ego.v_max, dt
+    )
+    steady_free = follow.safe_stop_speed(driver, dist, dt)
+    steady_led = follow.safe_follow_speed(
+        driver, leader.gap, leader.speed, leader.driver.decel, dt
+    )
+    led = jnp.where(accelerating, accelerating_led, steady_led)
+    free = jnp.where(accelerating, accelerating_free, steady_free)
+    return jnp.minimum(v_max, jnp.where(leader.exists, led, free))
+
+
+def wants_change(
+    direction: int,
+    ego: Ego,
+    memory_state: jax.Array,
+    speed_gain_probability: jax.Array,
+    keep_right_probability: jax.Array,
+    look_ahead_speed: jax.Array,
+    advices: jax.Array,
+    *,
+    curr: LaneQ,
+    neigh: LaneQ,
+    best: LaneQ,
+    leader: Neighbour,
+    neigh_lead: Neighbour,
+    neigh_follow: Neighbour,
+    blocked: jax.Array,
+    lc: LaneChangeParams,
+    dt: float,
+    roundabout_bonus: jax.Array | float = 0.0,
+) -> Wish:
+    """`MSLCM_LC2013::_wantsChange` for ``direction`` (-1 right, +1 left).
+
+    Args:
+        memory_state, speed_gain_probability, keep_right_probability,
+            look_ahead_speed: the vehicle's LC2013 memory (`Memory` fields).
+        advices: (A,) its advices so far this step (next speeds, NaN empty).
+        curr, neigh: the LaneQ of its lane and of the lane it looks at.
+        best: the LaneQ of the lane ``curr.best_lane_offset`` away.
+        leader: the leader on its own lane.
+        neigh_lead, neigh_follow: leader and follower on the target lane.
+        blocked: `check_change`'s bits for this direction.
+        roundabout_bonus: `MSLCHelper::getRoundaboutDistBonus` (m; 0 off a
+            roundabout).
+    """
+    right = direction < 0
+    lca_dir = lca.RIGHT if right else lca.LEFT
+    my_lca = lca.MRIGHT if right else lca.MLEFT
+    v, driver = ego.speed, ego.driver
+    f32 = jnp.result_type(float)
+    # 1. the best lane: with both lanes equally good, the one looked at
+    equal = (curr.best_lane_offset == 0) & (neigh.best_lane_offset == 0)
+    best_offset = jnp.where(equal, direction, curr.best_lane_offset)
+    best = jax.tree.map(lambda n, b: jnp.where(equal, n, b), neigh, best)
+    change_to_best = (best_offset < 0) if right else (best_offset > 0)
+    on_course = change_to_best & (best_offset == curr.best_lane_offset)
+    abs_offset = jnp.abs(best_offset).astype(f32)
+    ret = memory_state & lca.MESSAGE_BITS
+
+    # 2. the look-ahead distance (its speed jumps up, decays by 0.9 per second)
+    memory_factor = 1.0 - (1.0 - LOOK_AHEAD_SPEED_MEMORY) * dt
+    look_ahead = jnp.where(
+        v > look_ahead_speed,
+        v,
+        jnp.maximum(0.0, memory_factor * look_ahead_speed + (1 - memory_factor) * v),
+    )
+    la_dist = (
+        look_ahead * LOOK_FORWARD * lc.strategic * (1.0 if right else lc.lookahead_left)
+    )
+    la_dist = la_dist + 2.0 * driver.length_with_gap
+    la_dist = jnp.where(jnp.asarray(lc.strategic) < 0, -1e3, la_dist)
+    current_dist = curr.length + roundabout_bonus
+    neigh_dist = neigh.length + roundabout_bonus
+    usable_dist = current_dist - ego.pos - best.occupation
+    max_jam = jnp.maximum(neigh.occupation, curr.occupation)
+    neigh_left_place = jnp.maximum(0.0, neigh_dist - ego.pos - max_jam)
+
+    # 3. urgent: the lane ends too soon for the route
+    urgent = on_course & (usable_dist / jnp.maximum(abs_offset, 1.0) < la_dist)
+    # 4. reasons to stay (stopped leaders are not modelled)
+    free_to_neigh_end = ~leader.exists | (neigh_dist - ego.pos <= leader.gap)
+    stay = ~urgent & (
+        (~change_to_best & (neigh_left_place / (abs_offset + 2.0) < la_dist))
+        | ((best_offset == 0) & (neigh_left_place * 2.0 < la_dist))
+        | (
+            (best_offset == 0) & neigh.ends_in_links & (roundabout_bonus == 0)
+            & jnp.where(jnp.asarray(lc.strategic) >= 0, neigh_dist < TURN_LANE_DIST,
+                        free_to_neigh_end)
+        )
+    )  # fmt: skip
+
+    # 5. the urgent change's negotiation with the target lane
+    left_space = current_dist - ego.pos
+    lanes_to_go = jnp.maximum(abs_offset, 1.0)
+    per_lane = left_space / jnp.maximum(look_ahead, NUMERICAL_EPS) / lanes_to_go
+    remaining_s = jnp.maximum(dt, per_lane / URGENCY)
+    planned, lead_advice, leader_speed, leader_bits = inform_leader(
+        ego, neigh_lead, blocked=blocked, my_lca=my_lca, remaining_s=remaining_s,
+        left_space=left_space, advices=advices, dt=dt,
+    )  # fmt: skip
+    follower_speed, follower_bits, follow_advice = inform_follower(
+        ego, neigh_follow, blocked=blocked, my_lca=my_lca, remaining_s=remaining_s,
+        planned=planned, dt=dt,
+    )  # fmt: skip
+    tells_follower = planned >= 0
+
+    # 6. the lanes' speeds compared
+    speeding_up = accelerating(neigh_lead) | accelerating(leader)
+    neigh_vsafe = jnp.minimum(
+        ego.neigh_v_max,
+        anticipate_follow_speed(
+            ego, neigh_lead, neigh_dist, ego.neigh_v_max, speeding_up, dt
+        ),
+    )
+    this_vsafe = jnp.minimum(
+        ego.v_max,
+        anticipate_follow_speed(ego, leader, current_dist, ego.v_max, speeding_up, dt),
+    )
+    sgp = speed_gain_probability
+    inconvenience = -sgp / lc.threshold_left if not right else sgp / lc.threshold_right
+    inconvenience = jnp.minimum(
+        1.0, jnp.maximum(this_vsafe / neigh_vsafe - 1.0, inconvenience)
+    )
+    speed_gain_inconvenient = inconvenience > lc.cooperative
+
+    # 7. roundabouts: to the inner lane cooperatively, stay off the outer one
+    in_roundabout = jnp.asarray(roundabout_bonus) > 0
+    roundabout_req = (
+        (lca_dir | lca.COOPERATIVE) if not right else (lca.STAY | lca.COOPERATIVE)
+    )
+    # 8. cooperation: help a vehicle that asked this one to make room
+    cooperates = (
+        (
+            (memory_state & (lca.AMBLOCKINGFOLLOWER | lca.AMBLOCKINGFOLLOWER_DONTBRAKE))
+            != 0
+        )
+        & ~speed_gain_inconvenient
+        & ((memory_state & my_lca) != 0)
+        & (change_to_best | (neigh_dist / (abs_offset + 1.0) > la_dist))
+    )
+    relative_gain = (neigh_vsafe - this_vsafe) / jnp.maximum(
+        neigh_vsafe, RELGAIN_NORMALIZATION_MIN_SPEED
+    )
+    # 9. speed gain and keep right
+    krp = keep_right_probability
+    keep_right = jnp.zeros_like(urgent)
+    if right:
+        faster_here = this_vsafe - 5.0 / 3.6 > neigh_vsafe
+        decayed = jnp.where(sgp < 0, sgp * 0.5**dt, sgp)
+        gained = jnp.where(
+            (sgp < 0) | (relative_gain > 0), sgp - dt * relative_gain, sgp
+        )
+        sgp = jnp.where(faster_here, decayed, gained)
+        road_speed_factor = ego.v_max / ego.speed_limit
+        acceptance = 7.0 * road_speed_factor * jnp.maximum(1.0, v)
+        full_speed_gap = jnp.maximum(
+            0.0, neigh_dist - follow.brake_gap(driver, ego.v_max, dt)
+        )
+        driving_s = jnp.minimum(acceptance, full_speed_gap / ego.v_max)
+        slow_neigh = neigh_lead.exists & (neigh_lead.speed < ego.v_max)
+        gap_to_slow = jnp.maximum(
+            0.0,
+            jnp.minimum(
+                full_speed_gap,
+                neigh_lead.gap - follow.secure_gap(driver, ego.v_max, neigh_lead.speed),
+            ),
+        )
+        driving_s = jnp.where(
+            slow_neigh,
+            jnp.minimum(
+                driving_s,
+                gap_to_slow / jnp.where(slow_neigh, ego.v_max - neigh_lead.speed, 1.0),
+            ),
+            driving_s,
+        )
+        delta_prob = lc.threshold_right * (driving_s / acceptance) / KEEP_RIGHT_TIME
+        krp = jnp.where(faster_here, krp, krp - dt * delta_prob)
+        keep_right = ~faster_here & (krp * lc.keep_right < -lc.threshold_right)
+        speed_gain = (sgp < -lc.threshold_right) & (
+            neigh_dist / jnp.maximum(0.1, v) > 20.0
+        )
+    else:
+        sgp = jnp.where(
+            this_vsafe > neigh_vsafe,
+            jnp.where(sgp > 0, sgp * 0.5**dt, sgp),
+            jnp.where(
+                this_vsafe == neigh_vsafe,
+                jnp.where(sgp > 0, sgp * 0.8**dt, sgp),
+                sgp + dt * relative_gain,
+            ),
+        )
+        speed_gain = (
+            (sgp > lc.threshold_left)
+            & (relative_gain > NUMERICAL_EPS)
+            & (neigh_dist / jnp.maximum(0.1, v) > 20.0)
+        )
+    # 10. towards the best lane when speed does not suffer
+    strategic = (
+        on_course & (jnp.asarray(lc.strategic) >= 0) & (relative_gain >= 0)
+        & ((sgp < 0) if right else (sgp > 0))
+    )  # fmt: skip
+
+    # the first branch that returns, in SUMO's order
+    state = jnp.select(
+        [urgent, stay, in_roundabout, cooperates, keep_right, speed_gain, strategic],
+        [
+            ret | lca_dir | lca.STRATEGIC | lca.URGENT,
+            ret | lca.STAY | lca.STRATEGIC,
+            ret | roundabout_req,
+            ret | lca_dir | lca.COOPERATIVE | lca.URGENT,
+            ret | lca_dir | lca.KEEPRIGHT,
+            ret | lca_dir | lca.SPEEDGAIN,
+            ret | lca_dir | lca.STRATEGIC,
+        ],
+        ret,
+    ).astype(jnp.int32)
+    # memory updates happen only on the paths that reach them
+    reaches_speeds = ~urgent & ~stay
+    reaches_gain = reaches_speeds & ~in_roundabout & ~cooperates
+    nan = jnp.asarray(jnp.nan, jnp.result_type(float))
+    return Wish(
+        state=state,
+        speed_gain_probability=jnp.where(reaches_gain, sgp, speed_gain_probability),
+        keep_right_probability=jnp.where(reaches_gain, krp, keep_right_probability),
+        look_ahead_speed=look_ahead,
+        own_advices=jnp.stack(
+            [
+                jnp.where(urgent, lead_advice, nan),
+                jnp.where(urgent & tells_follower, follow_advice, nan),
+                nan,
+            ]
+        ),  # fmt: skip
+        leader_speed=jnp.where(urgent, leader_speed, nan),
+        leader_bits=jnp.where(urgent, leader_bits, 0).astype(jnp.int32),
+        follower_speed=jnp.where(urgent & tells_follower, follower_speed, nan),
+        follower_bits=jnp.where(urgent & tells_follower, follower_bits, 0).astype(
+            jnp.int32
+        ),
+    )
