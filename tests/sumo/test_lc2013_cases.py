@@ -14,19 +14,16 @@ then changed (libsumo's clock reads one step later after `simulationStep`).
 from __future__ import annotations
 
 import math
-import subprocess
-import xml.etree.ElementTree as ET
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 import sumolib
 
-from jaxround.sumo_files.binaries import sumo_binary
+from jaxround.apps.lane_parity import V_MAX, two_lane_road
+from jaxround.apps.lane_parity import run_sumo as run
 
 pytestmark = pytest.mark.sumo
 
-V_MAX = 13.89  # m/s, the road's speed limit
 LENGTH, MIN_GAP, TAU = 5.0, 2.5, 1.0  # the default passenger vType
 ACCEL, DECEL = 2.6, 4.5  # IDM's defaults in SUMO
 THRESHOLD_RIGHT = 0.2 / 0.1  # myChangeProbThresholdRight at lcSpeedGainRight 0.1
@@ -34,72 +31,6 @@ THRESHOLD_RIGHT = 0.2 / 0.1  # myChangeProbThresholdRight at lcSpeedGainRight 0.
 # LaneChangeAction bits (SUMO's SUMOXMLDefinitions.h)
 LCA_LEFT, LCA_STRATEGIC, LCA_URGENT = 2, 8, 256
 LCA_BLOCKED_BY_LEFT_FOLLOWER = 1024
-
-
-def two_lane_road(tmp_path: Path, length: float, left_only: bool) -> Path:
-    """A two-lane edge `e1` of `length` m, 13.89 m/s. With `left_only`, only
-    its left lane continues to `e2` (the right one leads to `e3`), so a
-    vehicle routed e1 e2 on the right lane must change left."""
-    far = length + 100
-    (tmp_path / "n.nod.xml").write_text(
-        f'<nodes><node id="A" x="0" y="0"/><node id="B" x="{length}" y="0"/>'
-        f'<node id="C" x="{far}" y="0"/><node id="D" x="{far}" y="-100"/></nodes>'
-    )
-    edges = [f'<edge id="e1" from="A" to="B" numLanes="2" speed="{V_MAX}"/>']
-    args = ["--no-turnarounds", "true"]
-    if left_only:
-        edges += [
-            f'<edge id="{e}" from="B" to="{n}" numLanes="1" speed="{V_MAX}"/>'
-            for e, n in (("e2", "C"), ("e3", "D"))
-        ]
-        (tmp_path / "n.con.xml").write_text(
-            '<connections><connection from="e1" to="e2" fromLane="1" toLane="0"/>'
-            '<connection from="e1" to="e3" fromLane="0" toLane="0"/></connections>'
-        )
-        args += ["-x", str(tmp_path / "n.con.xml")]
-    (tmp_path / "n.edg.xml").write_text("<edges>" + "".join(edges) + "</edges>")
-    net = tmp_path / "n.net.xml"
-    subprocess.run(
-        [sumo_binary("netconvert"), "-n", str(tmp_path / "n.nod.xml"),
-         "-e", str(tmp_path / "n.edg.xml"), "-o", str(net), *args],
-        check=True, capture_output=True,
-    )  # fmt: skip
-    return net
-
-
-def run(
-    tmp_path: Path,
-    net: Path,
-    vehicles: str,
-    steps: int,
-    probe: Callable[[int], None] | None = None,
-    lc: str = "",
-) -> list[dict[str, str]]:
-    """Run `vehicles` (XML) for `steps` steps of 1 s in libsumo, calling
-    `probe(t)` after each step t; the lane changes SUMO wrote."""
-    import libsumo
-
-    routes = tmp_path / "r.rou.xml"
-    routes.write_text(
-        f'<routes><vType id="t" carFollowModel="IDM" speedDev="0" {lc}/>'
-        '<vType id="slow" carFollowModel="IDM" speedDev="0" maxSpeed="5"/>'
-        '<vType id="eight" carFollowModel="IDM" speedDev="0" maxSpeed="8"/>'
-        f"{vehicles}</routes>"
-    )
-    out = tmp_path / "lc.xml"
-    libsumo.start(
-        [sumo_binary("sumo"), "-n", str(net), "-r", str(routes),
-         "--step-length", "1", "--no-step-log", "true", "--precision", "6",
-         "--lanechange-output", str(out)]
-    )  # fmt: skip
-    try:
-        for t in range(steps):
-            libsumo.simulationStep()
-            if probe is not None:
-                probe(t)
-    finally:
-        libsumo.close()
-    return [c.attrib for c in ET.parse(out).getroot().iter("change")]
 
 
 def lc_state(vid: str, key: str) -> float:

@@ -26,11 +26,11 @@ from pathlib import Path
 import pytest
 import sumolib
 
+from jaxround.apps.lane_parity import two_lane_road
 from jaxround.scenario.config import load_config
 from jaxround.scenario.edges import in_edge, ring_edge, route_edges
 from jaxround.sumo_files.binaries import sumo_binary
 from jaxround.sumo_files.netconvert import network_file
-from tests.sumo.test_lc2013_cases import two_lane_road
 
 pytestmark = pytest.mark.sumo
 
