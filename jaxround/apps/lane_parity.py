@@ -140,20 +140,16 @@ def jax_run(
     """`jaxround.lanes.road` from SUMO's state in each vehicle's first step.
     ``routes`` maps a vehicle to "e1" (ends on the road) or "e1 e2" (only
     the left lane leads on); ``lc`` holds for the vType "t" (as
-    `lc_roads.run` sets it), the others drive with LC2013's defaults."""
+    `run_sumo` sets it), the others drive with LC2013's defaults."""
     sumo_net = sumolib.net.readNet(str(net))
     length = sumo_net.getLane("e1_0").getLength()
     ids = sorted(trace)
     first = [int(np.nonzero(~np.isnan(trace[v][:, 0]))[0][0]) for v in ids]
     start = np.array([trace[v][t] for v, t in zip(ids, first, strict=True)])
     leads_on = np.array([[routes[v] == "e1", True] for v in ids])
-    beyond = np.array(
-        [
-            0.0 if routes[v] == "e1"
-            else sumo_net.getEdge("e2").getLength() + 10.0  # the junction's lane
-            for v in ids
-        ]
-    )  # fmt: skip
+    # SUMO's LaneQ lengths add up normal lanes only (MSVehicle::updateBestLanes)
+    after = sumo_net.getEdge("e2").getLength() if sumo_net.hasEdge("e2") else 0.0
+    beyond = np.array([0.0 if routes[v] == "e1" else after for v in ids])
     traffic = lane_road.traffic(
         depart_pos=start[:, 0], depart_speed=start[:, 1],
         depart_lane=start[:, 2].astype(int), leads_on=leads_on, beyond=beyond,

@@ -34,6 +34,12 @@ URGENCY = 2.0
 KEEP_RIGHT_TIME = 5.0  # s
 TURN_LANE_DIST = 200.0  # m
 NUMERICAL_EPS = 0.001
+#: SUMO 1.28, not in the 2021 source read: a wish to change left for speed
+#: turns urgent (and negotiates with the target lane as a strategic one
+#: does) once mySpeedGainProbability passes this, whatever lcSpeedGain
+#: (measured: 49.75 -> 50.38 in the step it turned, at 4 and 5 m/s;
+#: `tests/sumo/test_lc2013_jax.py::test_urgent_speed_gain`).
+SPEED_GAIN_URGENT_PROBABILITY = 50.0
 
 
 class Wish(NamedTuple):
@@ -258,6 +264,7 @@ def wants_change(
     # 9. speed gain and keep right
     krp = keep_right_probability
     keep_right = jnp.zeros_like(urgent)
+    speed_gain_urgent = jnp.zeros_like(urgent)
     if right:
         faster_here = this_vsafe - 5.0 / 3.6 > neigh_vsafe
         decayed = jnp.where(sgp < 0, sgp * 0.5**dt, sgp)
@@ -308,6 +315,7 @@ def wants_change(
             & (relative_gain > NUMERICAL_EPS)
             & (neigh_dist / jnp.maximum(0.1, v) > 20.0)
         )
+        speed_gain_urgent = sgp > SPEED_GAIN_URGENT_PROBABILITY
     # 10. towards the best lane when speed does not suffer
     strategic = (
         on_course & (jnp.asarray(lc.strategic) >= 0) & (relative_gain >= 0)
@@ -323,7 +331,7 @@ def wants_change(
             ret | roundabout_req,
             ret | lca_dir | lca.COOPERATIVE | lca.URGENT,
             ret | lca_dir | lca.KEEPRIGHT,
-            ret | lca_dir | lca.SPEEDGAIN,
+            ret | lca_dir | lca.SPEEDGAIN | jnp.where(speed_gain_urgent, lca.URGENT, 0),
             ret | lca_dir | lca.STRATEGIC,
         ],
         ret,
@@ -331,6 +339,8 @@ def wants_change(
     # memory updates happen only on the paths that reach them
     reaches_speeds = ~urgent & ~stay
     reaches_gain = reaches_speeds & ~in_roundabout & ~cooperates
+    # an urgent change (strategic, or for speed in 1.28) negotiates
+    negotiates = urgent | (reaches_gain & ~keep_right & speed_gain & speed_gain_urgent)
     nan = jnp.asarray(jnp.nan, jnp.result_type(float))
     return Wish(
         state=state,
@@ -339,15 +349,15 @@ def wants_change(
         look_ahead_speed=look_ahead,
         own_advices=jnp.stack(
             [
-                jnp.where(urgent, lead_advice, nan),
-                jnp.where(urgent & tells_follower, follow_advice, nan),
+                jnp.where(negotiates, lead_advice, nan),
+                jnp.where(negotiates & tells_follower, follow_advice, nan),
                 nan,
             ]
         ),  # fmt: skip
-        leader_speed=jnp.where(urgent, leader_speed, nan),
-        leader_bits=jnp.where(urgent, leader_bits, 0).astype(jnp.int32),
-        follower_speed=jnp.where(urgent & tells_follower, follower_speed, nan),
-        follower_bits=jnp.where(urgent & tells_follower, follower_bits, 0).astype(
+        leader_speed=jnp.where(negotiates, leader_speed, nan),
+        leader_bits=jnp.where(negotiates, leader_bits, 0).astype(jnp.int32),
+        follower_speed=jnp.where(negotiates & tells_follower, follower_speed, nan),
+        follower_bits=jnp.where(negotiates & tells_follower, follower_bits, 0).astype(
             jnp.int32
         ),
     )

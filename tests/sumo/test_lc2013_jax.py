@@ -26,6 +26,7 @@ from jaxround.apps.lane_parity import (
     two_lane_road,
 )
 from jaxround.apps.lane_parity import vehicle_xml as vehicle
+from jaxround.lanes import actions as lca
 from jaxround.lanes import road as lane_road
 from jaxround.lanes.actions import reason
 from jaxround.lanes.params import LaneChangeParams
@@ -40,12 +41,15 @@ def compare(
     changes: list[dict[str, str]],
     *,
     pos_tol: float,
+    until: int | None = None,
 ) -> list[tuple[int, str, int, str]]:
-    """Assert the same lanes and positions / speeds within ``pos_tol`` on e1;
-    return JAX's changes as (time, id, dir, reason), equal to SUMO's."""
+    """Assert the same lanes and positions / speeds within ``pos_tol`` on e1
+    (up to step ``until``, default all); return JAX's changes as (time, id,
+    dir, reason), equal to SUMO's (those up to ``until``)."""
     got = []
+    last = record.pos.shape[0] if until is None else until
     for k, vid in enumerate(ids):
-        for t in range(1, record.pos.shape[0] + 1):
+        for t in range(1, last + 1):
             sumo = trace[vid][t]
             if np.isnan(sumo[0]) or sumo[3] != 1 or not bool(record.active[t - 1, k]):
                 continue
@@ -65,7 +69,7 @@ def compare(
     want = [
         (int(float(c["time"])), c["id"], int(c["dir"]), c["reason"])
         for c in changes
-        if c["from"].startswith("e1_")
+        if c["from"].startswith("e1_") and float(c["time"]) <= last
     ]
     assert sorted(got) == sorted(want)
     return got
@@ -170,3 +174,34 @@ def test_dense_roads_float32(tmp_path: Path) -> None:
     errors = [r["float32_time_s"] / r["sumo_time_s"] - 1 for r in rows]
     assert max(abs(e) for e in errors) < 0.03
     assert abs(np.mean(errors)) < 0.01
+
+
+@pytest.mark.parametrize(("speed", "turns"), [(5.0, 79), (4.0, 87)])
+def test_urgent_speed_gain(tmp_path: Path, speed: float, turns: int) -> None:
+    """SUMO 1.28's urgent speed gain (not in the 2021 model): a free car stuck
+    behind a slow leader, its left change blocked by a slow car alongside,
+    turns its wish `speedGain|urgent` once the speed-gain probability
+    passes 50 (at 79 s at 5 m/s, 87 s at 4), asks the car alongside to
+    brake, and changes when the gap opens. Everything is SUMO's up to that
+    step; then the car alongside brakes harder in JAX (5 -> 2.1 m/s in one
+    step, SUMO 5 -> 4.0 -> 2.2 by a 1.28 rule not read), and the change
+    comes a step earlier."""
+    net = two_lane_road(tmp_path, 1000.0, left_only=False)
+    vehicles = (
+        vehicle("lead", "slow", 0, 512.56, speed)
+        + vehicle("ego", "t", 0, 500.0, speed)
+        + vehicle("blk", "slow", 1, 492.21, speed)
+    )
+    trace, changes = sumo_trace(tmp_path, net, vehicles, 100)
+    types = {"lead": "slow", "ego": "t", "blk": "slow"}
+    routes = dict.fromkeys(types, "e1")
+    ids, record = jax_run_x64(net, trace, types, routes, 100, LaneChangeParams())
+    compare(ids, trace, record, changes, pos_tol=1e-3, until=turns)
+    ego = ids.index("ego")
+    assert int(record.state[turns - 2, ego]) & lca.URGENT == 0
+    assert int(record.state[turns - 1, ego]) & lca.URGENT
+    (sumo_change,) = [c for c in changes if c["id"] == "ego"]
+    assert sumo_change["reason"] == "speedGain|urgent"
+    jax_step = int(np.argmax(np.asarray(record.change_direction[:, ego]) == 1)) + 1
+    assert int(record.change_state[jax_step - 1, ego]) & lca.URGENT
+    assert jax_step == int(float(sumo_change["time"])) - 1
