@@ -41,6 +41,9 @@ MAX_SPEED = {"t": 55.55, "slow": 5.0, "eight": 8.0}
 #: Steps of a dense road (s).
 DENSE_STEPS = 260
 
+#: One jitted road for all runs: same shapes, one compilation.
+_simulate = jax.jit(lane_road.simulate, static_argnums=(0, 3))
+
 
 def two_lane_road(workdir: Path, length: float, left_only: bool) -> Path:
     """A two-lane edge `e1` of `length` m, 13.89 m/s. With `left_only`, only
@@ -136,11 +139,14 @@ def jax_run(
     routes: dict[str, str],
     steps: int,
     lc: LaneChangeParams,
+    slots: int = 8,
 ) -> tuple[list[str], lane_road.StepRecord]:
     """`jaxround.lanes.road` from SUMO's state in each vehicle's first step.
     ``routes`` maps a vehicle to "e1" (ends on the road) or "e1 e2" (only
     the left lane leads on); ``lc`` holds for the vType "t" (as
-    `run_sumo` sets it), the others drive with LC2013's defaults."""
+    `run_sumo` sets it), the others drive with LC2013's defaults. The
+    vehicles fill at least ``slots`` slots (a multiple of 8), the rest
+    never depart: runs of one slot count and length share a compilation."""
     sumo_net = sumolib.net.readNet(str(net))
     length = sumo_net.getLane("e1_0").getLength()
     ids = sorted(trace)
@@ -150,20 +156,28 @@ def jax_run(
     # SUMO's LaneQ lengths add up normal lanes only (MSVehicle::updateBestLanes)
     after = sumo_net.getEdge("e2").getLength() if sumo_net.hasEdge("e2") else 0.0
     beyond = np.array([0.0 if routes[v] == "e1" else after for v in ids])
+    slots = max(slots, -(-len(ids) // 8) * 8)
+    pad = slots - len(ids)
+    max_speed = [MAX_SPEED[types[v]] for v in ids] + [MAX_SPEED["t"]] * pad
+    never = DENSE_STEPS * 100  # a padding slot's depart step: never
+    is_t = np.array([types[v] == "t" for v in ids] + [True] * pad)
     traffic = lane_road.traffic(
-        depart_pos=start[:, 0], depart_speed=start[:, 1],
-        depart_lane=start[:, 2].astype(int), leads_on=leads_on, beyond=beyond,
-        depart_step=np.array(first),
-        driver=lane_road.default_driver(len(ids), [MAX_SPEED[types[v]] for v in ids]),
-    )  # fmt: skip
-    is_t = np.array([types[v] == "t" for v in ids])
+        depart_pos=np.pad(start[:, 0], (0, pad)),
+        depart_speed=np.pad(start[:, 1], (0, pad)),
+        depart_lane=np.pad(start[:, 2].astype(int), (0, pad)),
+        leads_on=np.pad(leads_on, ((0, pad), (0, 0)), constant_values=True),
+        beyond=np.pad(beyond, (0, pad)),
+        depart_step=np.pad(np.array(first), (0, pad), constant_values=never),
+        driver=lane_road.default_driver(slots, max_speed),
+        road_length=length,
+    )
     default = LaneChangeParams()
     per_vehicle = jax.tree.map(
         lambda given, base: np.where(is_t, given, base), lc, default
     )
-    road = lane_road.Road(length=length, n_lanes=2, speed_limit=V_MAX)
-    simulate = jax.jit(lane_road.simulate, static_argnums=(0, 3))
-    _, record = simulate(road, traffic, per_vehicle, steps - 1)
+    road = lane_road.Road(n_lanes=2, speed_limit=V_MAX)
+    _, record = _simulate(road, traffic, per_vehicle, steps - 1)
+    record = jax.tree.map(lambda x: x[:, : len(ids)], record)
     return ids, record
 
 
@@ -210,7 +224,9 @@ def dense_road(
     runs = {}
     for precision in precisions:
         run = jax_run_x64 if precision == "float64" else jax_run
-        _, record = run(net, trace, types, routes, DENSE_STEPS, LaneChangeParams())
+        _, record = run(
+            net, trace, types, routes, DENSE_STEPS, LaneChangeParams(), slots=40
+        )
         active = np.asarray(record.active)
         left &= ~active[-1]
         changed = int(np.count_nonzero(np.asarray(record.change_direction)))

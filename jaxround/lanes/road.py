@@ -41,16 +41,14 @@ CONGESTED_SPEED = 60.0 / 3.6
 
 @dataclass(frozen=True)
 class Road:
-    """The road's static layout.
+    """The road's static layout (its length is traced: `Traffic.road_length`).
 
     Attributes:
-        length: m.
         n_lanes: 1 or 2.
         speed_limit: m/s, below 60 km/h.
         dt: step length (s).
     """
 
-    length: float
     n_lanes: int
     speed_limit: float
     dt: float = 1.0
@@ -63,8 +61,8 @@ class Road:
                 f"Road.speed_limit: {self.speed_limit} m/s; LC2013 is ported for "
                 f"speeds under {CONGESTED_SPEED:.2f} m/s (60 km/h) only"
             )
-        if self.length <= 0 or self.dt <= 0:
-            raise ValueError(f"Road.length {self.length} and dt {self.dt} must be > 0")
+        if self.dt <= 0:
+            raise ValueError(f"Road.dt: {self.dt}, must be > 0")
 
 
 @struct.dataclass
@@ -80,6 +78,8 @@ class Traffic:
         driver: `Driver` of (M,) arrays.
         leads_on: bool (M, Z), whether each lane leads on along its route.
         beyond: metres of its route after the road (0: it ends at the road's end).
+        road_length: the road's length (m), a scalar: roads of any length
+            share one compilation.
         memory: its LC2013 memory.
     """
 
@@ -95,6 +95,7 @@ class Traffic:
     driver: Driver
     leads_on: jax.Array
     beyond: jax.Array
+    road_length: jax.Array
     memory: Memory
 
 
@@ -133,11 +134,15 @@ def traffic(
     depart_lane: np.ndarray,
     leads_on: np.ndarray,
     driver: Driver,
+    road_length: float,
     depart_step: np.ndarray | None = None,
     beyond: np.ndarray | None = None,
 ) -> Traffic:
     """Vehicles that enter at the end of ``depart_step`` (default 0), their
-    routes ending ``beyond`` metres after the road (default 0), (M,) each."""
+    routes ending ``beyond`` metres after the road (default 0), (M,) each,
+    on a road of ``road_length`` m."""
+    if not road_length > 0:
+        raise ValueError(f"road_length: {road_length} m, must be > 0")
     m = len(depart_pos)
     depart_step = np.zeros(m, np.int32) if depart_step is None else depart_step
     f = lambda x: jnp.asarray(x, jnp.result_type(float))  # noqa: E731
@@ -155,18 +160,19 @@ def traffic(
         driver=driver,
         leads_on=jnp.asarray(leads_on, bool),
         beyond=f(np.zeros(m) if beyond is None else beyond),
+        road_length=f(road_length),
         memory=Memory.zeros(m),
     )
 
 
 def _lane_tables(
-    road: Road, leads_on: jax.Array, beyond: jax.Array
+    road: Road, length_m: jax.Array, leads_on: jax.Array, beyond: jax.Array
 ) -> tuple[jax.Array, jax.Array]:
     """Each vehicle's LaneQ length and best-lane offset per lane, (M, Z):
     a lane that leads on counts the road and the route beyond it (up to
     SUMO's look-ahead of 3,000 m), one that does not only the road."""
-    beyond_road = jnp.minimum(road.length + beyond[:, None], 3000.0)
-    length = jnp.where(leads_on, beyond_road, road.length)
+    beyond_road = jnp.minimum(length_m + beyond[:, None], 3000.0)
+    length = jnp.where(leads_on, beyond_road, length_m)
     lanes = jnp.arange(road.n_lanes)
     best = length >= jnp.max(length, axis=1, keepdims=True)  # (M, Z)
     apart = jnp.abs(lanes[:, None] - lanes[None, :])  # (Z, Z)
@@ -199,7 +205,12 @@ def step(
     )
     ends = ~jnp.take_along_axis(state.leads_on, state.lane[:, None], axis=1)[:, 0]
     v_stop = idm.idm_stop_speed(
-        v, road.length - pos, v_max_lane, vtype=driver.idm, dt=dt, n_substeps=n_sub
+        v,
+        state.road_length - pos,
+        v_max_lane,
+        vtype=driver.idm,
+        dt=dt,
+        n_substeps=n_sub,
     )
     v_safe = jnp.minimum(jnp.where(has_lead, v_follow, jnp.inf), v_free)
     v_safe = jnp.where(ends, jnp.minimum(v_safe, v_stop), v_safe)
@@ -216,15 +227,15 @@ def step(
     # 2. move, 3. leave at the end
     pos = jnp.where(state.active, pos + v_next * dt, pos)
     accel = (v_next - v) / dt
-    active = state.active & (pos <= road.length)
+    active = state.active & (pos <= state.road_length)
     # 4. prepareStep, 5. the lane changer
     memory = prepare_step(state.memory)
-    length, offset = _lane_tables(road, state.leads_on, state.beyond)
+    length, offset = _lane_tables(road, state.road_length, state.leads_on, state.beyond)
     edge = EdgeView(
         pos=pos, speed=v_next, accel=accel, lane=state.lane, active=active,
         driver=driver, v_max=jnp.broadcast_to(v_max_lane[:, None], (m, road.n_lanes)),
         speed_limit=jnp.full(road.n_lanes, road.speed_limit, jnp.result_type(float)),
-        lane_length=jnp.full(road.n_lanes, road.length, jnp.result_type(float)),
+        lane_length=jnp.full(road.n_lanes, state.road_length),
         laneq_length=length, laneq_offset=offset,
         next_occupation=jnp.zeros((m, road.n_lanes), jnp.result_type(float)),
         ends_in_links=~state.leads_on,

@@ -33,6 +33,10 @@ from jaxround.lanes.params import LaneChangeParams
 
 pytestmark = pytest.mark.sumo
 
+#: Steps and slots of every small case: one shape, so that they share one
+#: compilation of the JAX road (`jax_run` pads the vehicles).
+STEPS, SLOTS = 100, 24
+
 
 def compare(
     ids: list[str],
@@ -84,9 +88,11 @@ def test_strategic_change(
     net = two_lane_road(tmp_path, 1000.0, left_only=True)
     vehicles = vehicle("v", "t", 0, 0, "max", route="e1 e2")
     lc_xml = f'lcStrategic="{strategic}" lcLookaheadLeft="{lookahead_left}"'
-    trace, changes = sumo_trace(tmp_path, net, vehicles, 75, lc=lc_xml)
+    trace, changes = sumo_trace(tmp_path, net, vehicles, STEPS, lc=lc_xml)
     lc = LaneChangeParams(strategic=strategic, lookahead_left=lookahead_left)
-    ids, record = jax_run_x64(net, trace, {"v": "t"}, {"v": "e1 e2"}, 75, lc)
+    ids, record = jax_run_x64(
+        net, trace, {"v": "t"}, {"v": "e1 e2"}, STEPS, lc, slots=SLOTS
+    )
     got = compare(ids, trace, record, changes, pos_tol=1e-3)
     assert [g[3] for g in got] == ["strategic|urgent"]
 
@@ -96,10 +102,16 @@ def test_speed_gain_and_back_right(tmp_path: Path) -> None:
     and returns right (`keepRight`) once the leader is its secure gap behind."""
     net = two_lane_road(tmp_path, 600.0, left_only=False)
     vehicles = vehicle("lead", "slow", 0, 60, 5) + vehicle("v", "t", 0, 0, "max")
-    trace, changes = sumo_trace(tmp_path, net, vehicles, 40)
+    trace, changes = sumo_trace(tmp_path, net, vehicles, STEPS)
     types = {"lead": "slow", "v": "t"}
     ids, record = jax_run_x64(
-        net, trace, types, dict.fromkeys(types, "e1"), 40, LaneChangeParams()
+        net,
+        trace,
+        types,
+        dict.fromkeys(types, "e1"),
+        STEPS,
+        LaneChangeParams(),
+        slots=SLOTS,
     )
     got = compare(ids, trace, record, changes, pos_tol=1e-3)
     assert [g[3] for g in sorted(got)] == ["speedGain", "keepRight"]
@@ -109,9 +121,9 @@ def test_speed_gain_and_back_right(tmp_path: Path) -> None:
 def test_keep_right(tmp_path: Path, length: float) -> None:
     """A lone vehicle on the left lane moves right when SUMO's does."""
     net = two_lane_road(tmp_path, length, left_only=False)
-    trace, changes = sumo_trace(tmp_path, net, vehicle("v", "t", 1, 0, "max"), 20)
+    trace, changes = sumo_trace(tmp_path, net, vehicle("v", "t", 1, 0, "max"), STEPS)
     ids, record = jax_run_x64(
-        net, trace, {"v": "t"}, {"v": "e1"}, 20, LaneChangeParams()
+        net, trace, {"v": "t"}, {"v": "e1"}, STEPS, LaneChangeParams(), slots=SLOTS
     )
     got = compare(ids, trace, record, changes, pos_tol=1e-3)
     assert [g[3] for g in got] == ["keepRight"]
@@ -125,10 +137,16 @@ def test_blocked_by_a_follower_who_brakes(tmp_path: Path) -> None:
     vehicles = vehicle("f", "t", 1, 210, 13.89, "e1 e2") + vehicle(
         "v", "eight", 0, 240, 8, "e1 e2"
     )
-    trace, changes = sumo_trace(tmp_path, net, vehicles, 8)
+    trace, changes = sumo_trace(tmp_path, net, vehicles, STEPS)
     types = {"f": "t", "v": "eight"}
     ids, record = jax_run_x64(
-        net, trace, types, dict.fromkeys(types, "e1 e2"), 8, LaneChangeParams()
+        net,
+        trace,
+        types,
+        dict.fromkeys(types, "e1 e2"),
+        STEPS,
+        LaneChangeParams(),
+        slots=SLOTS,
     )
     got = compare(ids, trace, record, changes, pos_tol=1e-3)
     assert [g[1:] for g in got] == [("v", 1, "strategic|urgent")]
@@ -148,10 +166,16 @@ def test_busy_road(tmp_path: Path) -> None:
         xml.append(
             vehicle(vid, vtype, k % 2, 0, min(8.0, MAX_SPEED[vtype]), depart=2 * k)
         )
-    trace, changes = sumo_trace(tmp_path, net, "".join(xml), 150)
-    assert len(trace) == 20 and len(changes) >= 5
+    trace, changes = sumo_trace(tmp_path, net, "".join(xml), STEPS)
+    assert len(trace) == 20 and len(changes) >= 4
     ids, record = jax_run_x64(
-        net, trace, types, dict.fromkeys(types, "e1"), 150, LaneChangeParams()
+        net,
+        trace,
+        types,
+        dict.fromkeys(types, "e1"),
+        STEPS,
+        LaneChangeParams(),
+        slots=SLOTS,
     )
     compare(ids, trace, record, changes, pos_tol=1e-2)
 
@@ -192,10 +216,12 @@ def test_urgent_speed_gain(tmp_path: Path, speed: float, turns: int) -> None:
         + vehicle("ego", "t", 0, 500.0, speed)
         + vehicle("blk", "slow", 1, 492.21, speed)
     )
-    trace, changes = sumo_trace(tmp_path, net, vehicles, 100)
+    trace, changes = sumo_trace(tmp_path, net, vehicles, STEPS)
     types = {"lead": "slow", "ego": "t", "blk": "slow"}
     routes = dict.fromkeys(types, "e1")
-    ids, record = jax_run_x64(net, trace, types, routes, 100, LaneChangeParams())
+    ids, record = jax_run_x64(
+        net, trace, types, routes, STEPS, LaneChangeParams(), slots=SLOTS
+    )
     compare(ids, trace, record, changes, pos_tol=1e-3, until=turns)
     ego = ids.index("ego")
     assert int(record.state[turns - 2, ego]) & lca.URGENT == 0

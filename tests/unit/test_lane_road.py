@@ -1,5 +1,6 @@
 """`jaxround.lanes` without SUMO: the road's refusals, lane-change numbers
-swept with `vmap`, the advice slots, and the same numbers twice."""
+swept with `vmap` (the same numbers twice), the advice slots, the lane
+parity report."""
 
 from __future__ import annotations
 
@@ -17,14 +18,23 @@ from jaxround.lanes.views import N_ADVICES, push_advice
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
-        (dict(length=500.0, n_lanes=3, speed_limit=13.89), "n_lanes: 3"),
-        (dict(length=500.0, n_lanes=2, speed_limit=25.0), "60 km/h"),
-        (dict(length=-1.0, n_lanes=2, speed_limit=13.89), "length -1.0"),
+        (dict(n_lanes=3, speed_limit=13.89), "n_lanes: 3"),
+        (dict(n_lanes=2, speed_limit=25.0), "60 km/h"),
+        (dict(n_lanes=2, speed_limit=13.89, dt=0.0), "dt: 0.0"),
     ],
 )
 def test_road_refuses_what_is_not_ported(kwargs: dict, message: str) -> None:
     with pytest.raises(ValueError, match=message):
         lane_road.Road(**kwargs)
+
+
+def test_traffic_refuses_a_road_without_length() -> None:
+    with pytest.raises(ValueError, match="road_length: -1.0 m"):
+        lane_road.traffic(
+            depart_pos=np.zeros(1), depart_speed=np.zeros(1),
+            depart_lane=np.zeros(1, int), leads_on=np.ones((1, 2), bool),
+            driver=lane_road.default_driver(1), road_length=-1.0,
+        )  # fmt: skip
 
 
 def behind_a_slow_leader() -> lane_road.Traffic:
@@ -35,32 +45,29 @@ def behind_a_slow_leader() -> lane_road.Traffic:
         depart_lane=np.array([0, 0]),
         leads_on=np.ones((2, 2), bool),
         driver=lane_road.default_driver(2, np.array([5.0, 55.55])),
+        road_length=600.0,
     )
 
 
 def test_speed_gain_swept_with_vmap() -> None:
     """LaneChangeParams are traced: one `vmap` runs lcSpeedGain 0 and 1; only
-    the eager driver passes its slow leader on the left."""
-    road = lane_road.Road(length=600.0, n_lanes=2, speed_limit=13.89)
+    the eager driver passes its slow leader on the left. Run twice, the
+    same numbers."""
+    road = lane_road.Road(n_lanes=2, speed_limit=13.89)
 
     def run(speed_gain: jax.Array) -> lane_road.StepRecord:
         lc = LaneChangeParams(speed_gain=speed_gain)
         return lane_road.simulate(road, behind_a_slow_leader(), lc, 20)[1]
 
-    record = jax.jit(jax.vmap(run))(jnp.array([0.0, 1.0]))
+    sweep = jax.jit(jax.vmap(run))
+    record = sweep(jnp.array([0.0, 1.0]))
     follower_changes = np.asarray(record.change_direction[:, :, 1])  # (2, T)
     assert not follower_changes[0].any()
     assert follower_changes[1].max() == 1  # left, for speed
     first = int(np.argmax(follower_changes[1] == 1))
     assert record.change_state[1, first, 1] & lca.SPEEDGAIN
-
-
-def test_same_numbers_twice() -> None:
-    road = lane_road.Road(length=600.0, n_lanes=2, speed_limit=13.89)
-    simulate = jax.jit(lane_road.simulate, static_argnums=(0, 3))
-    a = simulate(road, behind_a_slow_leader(), LaneChangeParams(), 30)[1]
-    b = simulate(road, behind_a_slow_leader(), LaneChangeParams(), 30)[1]
-    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+    again = sweep(jnp.array([0.0, 1.0]))
+    for x, y in zip(jax.tree.leaves(record), jax.tree.leaves(again), strict=True):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
 
 
