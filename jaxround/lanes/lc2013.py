@@ -167,14 +167,14 @@ def wants_change(
     lca_dir = lca.RIGHT if right else lca.LEFT
     my_lca = lca.MRIGHT if right else lca.MLEFT
     v, driver = ego.speed, ego.driver
-    f32 = jnp.result_type(float)
+    float_dtype = jnp.result_type(float)
     # 1. the best lane: with both lanes equally good, the one looked at
     equal = (curr.best_lane_offset == 0) & (neigh.best_lane_offset == 0)
     best_offset = jnp.where(equal, direction, curr.best_lane_offset)
     best = jax.tree.map(lambda n, b: jnp.where(equal, n, b), neigh, best)
     change_to_best = (best_offset < 0) if right else (best_offset > 0)
     on_course = change_to_best & (best_offset == curr.best_lane_offset)
-    abs_offset = jnp.abs(best_offset).astype(f32)
+    abs_offset = jnp.abs(best_offset).astype(float_dtype)
     ret = memory_state & lca.MESSAGE_BITS
 
     # 2. the look-ahead distance (its speed jumps up, decays by 0.9 per second)
