@@ -225,8 +225,9 @@ def dense_road(
     for precision in precisions:
         run = jax_run_x64 if precision == "float64" else jax_run
         _, record = run(
-            net, trace, types, routes, DENSE_STEPS, LaneChangeParams(), slots=40
-        )
+            net, trace, types, routes, DENSE_STEPS, LaneChangeParams(),
+            slots=max(n, 32),
+        )  # fmt: skip
         active = np.asarray(record.active)
         left &= ~active[-1]
         changed = int(np.count_nonzero(np.asarray(record.change_direction)))

@@ -181,23 +181,19 @@ def test_busy_road(tmp_path: Path) -> None:
 
 
 def test_dense_roads_float32(tmp_path: Path) -> None:
-    """The first four dense roads of docs/lc2013-map.md's table (seeds 0
-    and 1, 30 and 40 vehicles, about 200 lane changes in all): trajectories
-    part ways once a decision flips (float32 against SUMO's doubles, and
-    the 1.28 rules the page lists as not ported), but the lane changes in
-    all agree within 10%, the mean time on the road within 3% on each road
-    and within 1% over the four."""
-    rows = [
-        dense_road(tmp_path / f"{seed}_{n}", seed, n)
-        for seed, n in ((0, 30), (0, 40), (1, 30), (1, 40))
-    ]
+    """The table's roads of 30 vehicles with seeds 0 and 1
+    (docs/lc2013-map.md, section 11; 111 lane changes in SUMO):
+    trajectories part ways once a decision flips (float32 against SUMO's
+    doubles, and the 1.28 rules the page lists as not ported), but the lane
+    changes agree within 10% over the two and the mean time on the road
+    within 1% on each."""
+    rows = [dense_road(tmp_path / f"{seed}", seed, 30) for seed in (0, 1)]
     sumo_changes = sum(r["sumo_changes"] for r in rows)
     jax_changes = sum(r["float32_changes"] for r in rows)
-    assert sumo_changes > 150
+    assert sumo_changes > 100
     assert jax_changes == pytest.approx(sumo_changes, rel=0.10)
-    errors = [r["float32_time_s"] / r["sumo_time_s"] - 1 for r in rows]
-    assert max(abs(e) for e in errors) < 0.03
-    assert abs(np.mean(errors)) < 0.01
+    for row in rows:
+        assert row["float32_time_s"] == pytest.approx(row["sumo_time_s"], rel=0.01)
 
 
 @pytest.mark.parametrize(("speed", "turns"), [(5.0, 79), (4.0, 87)])
