@@ -17,7 +17,9 @@ from jax.typing import ArrayLike
 
 from jaxround.core.idm import NUMERICAL_EPS
 
-__all__ = ["finalize_speed", "hold_or_update", "next_speed", "snap_speed"]
+__all__ = [
+    "finalize_speed", "hold_or_update", "next_speed", "snap_speed", "speed_bounds",
+]  # fmt: skip
 
 
 def finalize_speed(
@@ -62,6 +64,28 @@ def finalize_speed(
     Returns:
         (...) the speed at the end of the step.
     """
+    v_min, v_max = speed_bounds(
+        v, v_safe, v_lane, accel=accel, decel=decel, emergency_decel=emergency_decel,
+        dt=dt, action_step=action_step,
+    )  # fmt: skip
+    return jnp.maximum(v_min, v_max)
+
+
+def speed_bounds(
+    v: ArrayLike,
+    v_safe: ArrayLike,
+    v_lane: ArrayLike,
+    *,
+    accel: ArrayLike,
+    decel: ArrayLike,
+    emergency_decel: ArrayLike,
+    dt: ArrayLike,
+    action_step: ArrayLike,
+) -> tuple[jax.Array, jax.Array]:
+    """`finalize_speed`'s ``(vMin, vMax)`` before ``vMax = max(vMin, vMax)``:
+    the bounds ``MSCFModel::finalizeSpeed`` hands the lane-change model's
+    ``patchSpeed`` (`jaxround.lanes.memory.patch_speed`). Arguments as
+    `finalize_speed`'s; (...) each."""
     v = jnp.asarray(v, dtype=jnp.result_type(float, v))
     min_decel = jnp.maximum(decel, jnp.minimum(emergency_decel, 1.5))
     v_min_emergency = jnp.maximum(0.0, v - emergency_decel * dt)
@@ -71,7 +95,7 @@ def finalize_speed(
     v_max = jnp.minimum(
         jnp.minimum(v + accel * dt, v + (v_lane - v) * dt / action_step), v_safe
     )
-    return jnp.maximum(v_min, v_max)
+    return v_min, v_max
 
 
 def snap_speed(v_next: ArrayLike, dt: ArrayLike) -> jax.Array:

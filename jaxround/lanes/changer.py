@@ -178,7 +178,7 @@ def change_lanes(
             )
             state_me = state_me | bits
             advices_me = push_advice(advices_me, advice)
-        wishes: dict[int, tuple[Wish, jax.Array, jax.Array]] = {}
+        states: dict[int, jax.Array] = {}
         sgp = mem.speed_gain_probability[i]
         krp = mem.keep_right_probability[i]
         look = mem.look_ahead_speed[i]
@@ -208,7 +208,7 @@ def change_lanes(
             krp = wish.keep_right_probability
             look = wish.look_ahead_speed
             state = jnp.where(may, wish.state | blocked, 0)
-            wishes[direction] = (wish, state, jnp.stack([nl_slot, nf_slot]))
+            states[direction] = state
             # the messages reach their receivers at once
             for advice in wish.own_advices:
                 advices_me = push_advice(advices_me, advice)
@@ -226,8 +226,7 @@ def change_lanes(
                     mem.state[nf_slot] | wish.follower_bits
                 ),
             )
-        _, state_right, _ = wishes[-1]
-        _, state_left, _ = wishes[1]
+        state_right, state_left = states[-1], states[1]
         go_right = ((state_right & lca.RIGHT) != 0) & ((state_right & lca.BLOCKED) == 0)
         go_left = (
             ~go_right

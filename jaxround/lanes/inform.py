@@ -4,8 +4,9 @@
 a vehicle that must change asks the target lane's follower to brake or let
 it be overtaken, decides to pass or fall in behind the target lane's
 leader, and a vehicle behind a blocked changer slows down to let it in.
-Each returns speed advices (`Messages`, and the changer's own advices) that
-the receivers apply in their next step's `patchSpeed`.
+Each returns speed advices and state bits for the neighbours (and advices
+to the changer itself) that the receivers apply in their next step's
+`patchSpeed`.
 
 Not ported: `MSLCHelper::divergentRoute` (a neighbour leaving on another
 route is negotiated with like any other) and the rules for speeds above

@@ -215,12 +215,10 @@ def step(
     v_safe = jnp.minimum(jnp.where(has_lead, v_follow, jnp.inf), v_free)
     v_safe = jnp.where(ends, jnp.minimum(v_safe, v_stop), v_safe)
     # MSCFModel::finalizeSpeed's bounds, then MSLCM_LC2013::patchSpeed
-    min_decel = jnp.maximum(driver.decel, jnp.minimum(driver.emergency_decel, 1.5))
-    v_min = jnp.minimum(
-        jnp.maximum(0.0, v - min_decel * dt),
-        jnp.maximum(v_safe, jnp.maximum(0.0, v - driver.emergency_decel * dt)),
-    )
-    v_top = jnp.minimum(jnp.minimum(v + driver.accel * dt, v_max_lane), v_safe)
+    v_min, v_top = finalize.speed_bounds(
+        v, v_safe, v_max_lane, accel=driver.accel, decel=driver.decel,
+        emergency_decel=driver.emergency_decel, dt=dt, action_step=dt,
+    )  # fmt: skip
     v_top = jnp.maximum(v_min, v_top)
     v_next = patch_speed(state.memory, v_min, v_top, v_top, lc.cooperative)
     v_next = jnp.where(state.active, finalize.snap_speed(v_next, dt), 0.0)

@@ -84,21 +84,6 @@ class LaneQ(NamedTuple):
     ends_in_links: jax.Array
 
 
-class Messages(NamedTuple):
-    """What a decision tells its neighbours (`MSLCMessager`): a speed advice
-    (NaN: none) and state bits for the target lane's leader and follower."""
-
-    leader_speed: jax.Array
-    leader_bits: jax.Array
-    follower_speed: jax.Array
-    follower_bits: jax.Array
-
-    @classmethod
-    def none(cls) -> Messages:
-        nan, zero = jnp.asarray(jnp.nan, jnp.result_type(float)), jnp.int32(0)
-        return cls(nan, zero, nan, zero)
-
-
 @struct.dataclass
 class Memory:
     """What LC2013 keeps of a vehicle between steps. Shapes (M,) unless said.
