@@ -38,6 +38,18 @@ pytestmark = pytest.mark.sumo
 STEPS, SLOTS = 100, 24
 
 
+def hand_case(
+    net: Path,
+    trace: dict[str, np.ndarray],
+    types: dict[str, str],
+    routes: dict[str, str],
+    lc: LaneChangeParams | None = None,
+) -> tuple[list[str], lane_road.StepRecord]:
+    """`jax_run_x64` for a small case: ``STEPS`` steps in ``SLOTS`` slots."""
+    lc = LaneChangeParams() if lc is None else lc
+    return jax_run_x64(net, trace, types, routes, STEPS, lc, slots=SLOTS)
+
+
 def compare(
     ids: list[str],
     trace: dict[str, np.ndarray],
@@ -90,9 +102,7 @@ def test_strategic_change(
     lc_xml = f'lcStrategic="{strategic}" lcLookaheadLeft="{lookahead_left}"'
     trace, changes = sumo_trace(tmp_path, net, vehicles, STEPS, lc=lc_xml)
     lc = LaneChangeParams(strategic=strategic, lookahead_left=lookahead_left)
-    ids, record = jax_run_x64(
-        net, trace, {"v": "t"}, {"v": "e1 e2"}, STEPS, lc, slots=SLOTS
-    )
+    ids, record = hand_case(net, trace, {"v": "t"}, {"v": "e1 e2"}, lc)
     got = compare(ids, trace, record, changes, pos_tol=1e-3)
     assert [g[3] for g in got] == ["strategic|urgent"]
 
@@ -104,15 +114,7 @@ def test_speed_gain_and_back_right(tmp_path: Path) -> None:
     vehicles = vehicle("lead", "slow", 0, 60, 5) + vehicle("v", "t", 0, 0, "max")
     trace, changes = sumo_trace(tmp_path, net, vehicles, STEPS)
     types = {"lead": "slow", "v": "t"}
-    ids, record = jax_run_x64(
-        net,
-        trace,
-        types,
-        dict.fromkeys(types, "e1"),
-        STEPS,
-        LaneChangeParams(),
-        slots=SLOTS,
-    )
+    ids, record = hand_case(net, trace, types, dict.fromkeys(types, "e1"))
     got = compare(ids, trace, record, changes, pos_tol=1e-3)
     assert [g[3] for g in sorted(got)] == ["speedGain", "keepRight"]
 
@@ -122,9 +124,7 @@ def test_keep_right(tmp_path: Path, length: float) -> None:
     """A lone vehicle on the left lane moves right when SUMO's does."""
     net = two_lane_road(tmp_path, length, left_only=False)
     trace, changes = sumo_trace(tmp_path, net, vehicle("v", "t", 1, 0, "max"), STEPS)
-    ids, record = jax_run_x64(
-        net, trace, {"v": "t"}, {"v": "e1"}, STEPS, LaneChangeParams(), slots=SLOTS
-    )
+    ids, record = hand_case(net, trace, {"v": "t"}, {"v": "e1"})
     got = compare(ids, trace, record, changes, pos_tol=1e-3)
     assert [g[3] for g in got] == ["keepRight"]
 
@@ -139,15 +139,7 @@ def test_blocked_by_a_follower_who_brakes(tmp_path: Path) -> None:
     )
     trace, changes = sumo_trace(tmp_path, net, vehicles, STEPS)
     types = {"f": "t", "v": "eight"}
-    ids, record = jax_run_x64(
-        net,
-        trace,
-        types,
-        dict.fromkeys(types, "e1 e2"),
-        STEPS,
-        LaneChangeParams(),
-        slots=SLOTS,
-    )
+    ids, record = hand_case(net, trace, types, dict.fromkeys(types, "e1 e2"))
     got = compare(ids, trace, record, changes, pos_tol=1e-3)
     assert [g[1:] for g in got] == [("v", 1, "strategic|urgent")]
 
@@ -168,15 +160,7 @@ def test_busy_road(tmp_path: Path) -> None:
         )
     trace, changes = sumo_trace(tmp_path, net, "".join(xml), STEPS)
     assert len(trace) == 20 and len(changes) >= 4
-    ids, record = jax_run_x64(
-        net,
-        trace,
-        types,
-        dict.fromkeys(types, "e1"),
-        STEPS,
-        LaneChangeParams(),
-        slots=SLOTS,
-    )
+    ids, record = hand_case(net, trace, types, dict.fromkeys(types, "e1"))
     compare(ids, trace, record, changes, pos_tol=1e-2)
 
 
@@ -215,9 +199,7 @@ def test_urgent_speed_gain(tmp_path: Path, speed: float, turns: int) -> None:
     trace, changes = sumo_trace(tmp_path, net, vehicles, STEPS)
     types = {"lead": "slow", "ego": "t", "blk": "slow"}
     routes = dict.fromkeys(types, "e1")
-    ids, record = jax_run_x64(
-        net, trace, types, routes, STEPS, LaneChangeParams(), slots=SLOTS
-    )
+    ids, record = hand_case(net, trace, types, routes)
     compare(ids, trace, record, changes, pos_tol=1e-3, until=turns)
     ego = ids.index("ego")
     assert int(record.state[turns - 2, ego]) & lca.URGENT == 0
