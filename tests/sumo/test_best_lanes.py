@@ -40,6 +40,7 @@ from jaxround.sumo_files.binaries import sumo_binary
 from jaxround.sumo_files.netconvert import network_file
 from sumo_export.scenario import HV_TYPE, vtype_xml
 from tests.conftest import builtin_dict
+from tests.sumo.two_lane_networks import five_legs, two_lane_exits
 
 pytestmark = pytest.mark.sumo
 
@@ -49,28 +50,6 @@ LENGTH_TOLERANCE_M = 0.01
 #: fixed 200 m and 3,000 m (SUMO's passenger defaults otherwise).
 SLOW_VTYPE = '<vType id="slow" maxSpeed="5" speedDev="0" sigma="0"/>'
 SLOW_DRIVER = LookAheadDriver(max_speed=5.0)
-
-
-def two_lane_exits() -> ScenarioConfig:
-    d = builtin_dict("two_lane")
-    for leg in d["network"]["legs"]:
-        leg["exit_lanes"] = 2
-    return config_from_dict(d)
-
-
-def five_legs() -> ScenarioConfig:
-    """Five legs 72 degrees apart; one-lane and two-lane entries and exits."""
-    d = builtin_dict("two_lane")
-    lanes = [(2, 1), (2, 2), (1, 1), (2, 1), (1, 2)]  # (entry, exit) per leg
-    d["network"]["ring_radius_m"] = 25.0
-    d["network"]["legs"] = [
-        {"name": f"leg{i}", "angle_deg": 72.0 * i, "length_m": 80.0,
-         "speed_limit_mps": 13.89, "entry_lanes": entry, "exit_lanes": exit_}
-        for i, (entry, exit_) in enumerate(lanes)
-    ]  # fmt: skip
-    d["demand"]["origin_share"] = [0.2] * 5
-    d["demand"]["od"] = [[0.0 if i == j else 0.25 for j in range(5)] for i in range(5)]
-    return config_from_dict(d)
 
 
 @dataclass(frozen=True)
