@@ -23,10 +23,9 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxround.lanes import actions as lca
+from jaxround.lanes.decide import Side, take_turn
 from jaxround.lanes.follow import Driver
 from jaxround.lanes.inform import slow_down_for_blocked
-from jaxround.lanes.lc2013 import Wish, check_change, wants_change
 from jaxround.lanes.memory import after_change
 from jaxround.lanes.params import LaneChangeParams
 from jaxround.lanes.views import Ego, LaneQ, Memory, Neighbour, push_advice
@@ -178,79 +177,29 @@ def change_lanes(
             )
             state_me = state_me | bits
             advices_me = push_advice(advices_me, advice)
-        states: dict[int, jax.Array] = {}
-        sgp = mem.speed_gain_probability[i]
-        krp = mem.keep_right_probability[i]
-        look = mem.look_ahead_speed[i]
+        sides = []
         for direction in (-1, 1):
             target = own + direction
-            may = (target >= 0) & (target < n_lanes) & edge.active[i]
             tz = jnp.clip(target, 0, n_lanes - 1)
-            ego = ego_view(tz)
             nl_slot, nl_exists = _nearest(ahead & (lane == target), edge.pos)
-            neigh_lead = _neighbour(edge, nl_slot, nl_exists, gap_ahead[nl_slot], tz)
             gap_behind = pos_i - me.length - edge.pos - edge.driver.min_gap
             nf_slot, nf_exists = _nearest(behind & (lane == target), -edge.pos)
-            neigh_follow = _neighbour(edge, nf_slot, nf_exists, gap_behind[nf_slot], tz)
-            blocked = check_change(direction, ego, neigh_lead, neigh_follow, lc_i)
-            wish = wants_change(
-                direction, ego, state_me, sgp, krp, look, advices_me,
-                curr=curr, neigh=laneq(target), best=best, leader=leader,
-                neigh_lead=neigh_lead, neigh_follow=neigh_follow, blocked=blocked,
-                lc=lc_i, dt=dt,
-            )  # fmt: skip
-            wish = jax.tree.map(
-                lambda new, old: jnp.where(may, new, old),
-                wish,
-                Wish(0, sgp, krp, look, jnp.full(3, jnp.nan), jnp.nan, 0, jnp.nan, 0),
-            )
-            sgp = wish.speed_gain_probability
-            krp = wish.keep_right_probability
-            look = wish.look_ahead_speed
-            state = jnp.where(may, wish.state | blocked, 0)
-            states[direction] = state
-            # the messages reach their receivers at once
-            for advice in wish.own_advices:
-                advices_me = push_advice(advices_me, advice)
-            mem = mem.replace(
-                advices=mem.advices.at[nl_slot].set(
-                    push_advice(mem.advices[nl_slot], wish.leader_speed)
-                ),
-                state=mem.state.at[nl_slot].set(mem.state[nl_slot] | wish.leader_bits),
-            )
-            mem = mem.replace(
-                advices=mem.advices.at[nf_slot].set(
-                    push_advice(mem.advices[nf_slot], wish.follower_speed)
-                ),
-                state=mem.state.at[nf_slot].set(
-                    mem.state[nf_slot] | wish.follower_bits
-                ),
-            )
-        state_right, state_left = states[-1], states[1]
-        go_right = ((state_right & lca.RIGHT) != 0) & ((state_right & lca.BLOCKED) == 0)
-        go_left = (
-            ~go_right
-            & ((state_left & lca.LEFT) != 0)
-            & ((state_left & lca.BLOCKED) == 0)
-        )
-        urgent_right = ((state_right & lca.RIGHT) != 0) & (
-            (state_right & lca.URGENT) != 0
-        )
-        urgent_left = ((state_left & lca.LEFT) != 0) & ((state_left & lca.URGENT) != 0)
-        both_urgent = ((state_right & lca.URGENT) != 0) & (
-            (state_left & lca.URGENT) != 0
-        )
-        kept = state_right | jnp.where(both_urgent, 0, state_left)
-        direction = jnp.where(go_right, -1, jnp.where(go_left, 1, 0))
-        change_state = jnp.where(
-            go_right, state_right, jnp.where(go_left, state_left, 0)
-        )
+            sides.append(Side(
+                may=(target >= 0) & (target < n_lanes) & edge.active[i],
+                ego=ego_view(tz), neigh=laneq(target),
+                lead=_neighbour(edge, nl_slot, nl_exists, gap_ahead[nl_slot], tz),
+                lead_slot=nl_slot,
+                follow=_neighbour(edge, nf_slot, nf_exists, gap_behind[nf_slot], tz),
+                follow_slot=nf_slot, bonus=0.0,
+            ))  # fmt: skip
+        turn, mem = take_turn(
+            i, mem, state_me, advices_me, curr=curr, best=best, leader=leader,
+            right=sides[0], left=sides[1], lc=lc_i, dt=dt,
+        )  # fmt: skip
         # a vehicle blocked in an urgent change is remembered on the target lane
-        registrations = (
-            (urgent_right & ~go_right, own - 1),
-            (urgent_left & ~go_right & ~go_left, own + 1),
-        )
-        for blocked_urgent, target in registrations:
+        for blocked_urgent, target in (
+            (turn.blocked_right, own - 1), (turn.blocked_left, own + 1)
+        ):  # fmt: skip
             tz = jnp.clip(target, 0, n_lanes - 1)
             last_blocked = jnp.where(
                 blocked_urgent, last_blocked.at[tz].set(i), last_blocked
@@ -261,13 +210,10 @@ def change_lanes(
                 first_blocked,
             )
         active = edge.active[i]
-        direction = jnp.where(active, direction, 0)
+        direction = jnp.where(active, turn.direction, 0)
+        change_state = turn.change_state
         mem = mem.replace(
-            state=mem.state.at[i].set(jnp.where(active, kept, mem.state[i])),
-            speed_gain_probability=mem.speed_gain_probability.at[i].set(sgp),
-            keep_right_probability=mem.keep_right_probability.at[i].set(krp),
-            look_ahead_speed=mem.look_ahead_speed.at[i].set(look),
-            advices=mem.advices.at[i].set(advices_me),
+            state=mem.state.at[i].set(jnp.where(active, turn.kept, mem.state[i]))
         )
         changed = slots == jnp.where(direction != 0, i, -1)
         mem = after_change(mem, changed)

@@ -1,0 +1,152 @@
+"""One candidate's turn in `MSLaneChanger::change`, whatever the geometry.
+
+The changers (`jaxround.lanes.changer` on a straight road,
+`jaxround.lanes.ring_changer` on a roundabout's lane paths) find a
+candidate's neighbours and lane tables; this module does the rest of its
+turn as SUMO does: `slowDownForBlocked` for the vehicles registered blocked
+on its lane, right then left `checkChange` and `wantsChange`, the messages
+to the target lane's leader and follower, and which way it goes.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxround.lanes import actions as lca
+from jaxround.lanes.lc2013 import Wish, check_change, wants_change
+from jaxround.lanes.params import LaneChangeParams
+from jaxround.lanes.views import Ego, LaneQ, Memory, Neighbour, push_advice
+
+
+class Turn(NamedTuple):
+    """What the candidate decided. Scalars.
+
+    Attributes:
+        direction: -1 right, +1 left, 0 stays.
+        change_state: the state it changed with (0 if it stays).
+        kept: the state it keeps (`setOwnState`: both sides, the left one
+            dropped where both are urgent).
+        blocked_right, blocked_left: it wants that way urgently and may not
+            (registered as ``lastBlocked``/``firstBlocked`` on that lane).
+        state_right, state_left: what it wanted each way, blocked bits in
+            (SUMO's ``stateRight``/``stateLeft``; 0 where it may not look).
+    """
+
+    direction: jax.Array
+    change_state: jax.Array
+    kept: jax.Array
+    blocked_right: jax.Array
+    blocked_left: jax.Array
+    state_right: jax.Array
+    state_left: jax.Array
+
+
+class Side(NamedTuple):
+    """What the candidate sees on one side: may it look there at all (the
+    lane exists and changing to it is allowed), the target lane's leader
+    and follower with their slots, the target lane's LaneQ and the roundabout
+    bonus of that look (m)."""
+
+    may: jax.Array
+    ego: Ego
+    neigh: LaneQ
+    lead: Neighbour
+    lead_slot: jax.Array
+    follow: Neighbour
+    follow_slot: jax.Array
+    bonus: jax.Array | float
+
+
+def _told(memory: Memory, slot: jax.Array, speed: jax.Array, bits: jax.Array) -> Memory:
+    """`inform`: a speed advice and state bits to vehicle ``slot`` at once."""
+    return memory.replace(
+        advices=memory.advices.at[slot].set(push_advice(memory.advices[slot], speed)),
+        state=memory.state.at[slot].set(memory.state[slot] | bits),
+    )
+
+
+def take_turn(
+    i: jax.Array,
+    memory: Memory,
+    state: jax.Array,
+    advices: jax.Array,
+    *,
+    curr: LaneQ,
+    best: LaneQ,
+    leader: Neighbour,
+    right: Side,
+    left: Side,
+    lc: LaneChangeParams,
+    dt: float,
+) -> tuple[Turn, Memory]:
+    """Vehicle ``i``'s turn: right first, then left (`MSLaneChanger::change`).
+
+    Args:
+        i: its slot.
+        memory: every vehicle's memory so far this step (others' messages in).
+        state, advices: its own state and advices after `slowDownForBlocked`.
+        curr, best: the LaneQ of its lane and of its best lane.
+        leader: the leader on its own lane.
+        right, left: what it sees on each side.
+
+    Returns:
+        (turn, memory): its decision, and the memory with its new state,
+        probabilities, look-ahead speed and advices, and its messages.
+    """
+    sgp = memory.speed_gain_probability[i]
+    krp = memory.keep_right_probability[i]
+    look = memory.look_ahead_speed[i]
+    states = {}
+    for direction, side in ((-1, right), (1, left)):
+        blocked = check_change(direction, side.ego, side.lead, side.follow, lc)
+        wish = wants_change(
+            direction, side.ego, state, sgp, krp, look, advices,
+            curr=curr, neigh=side.neigh, best=best, leader=leader,
+            neigh_lead=side.lead, neigh_follow=side.follow, blocked=blocked,
+            lc=lc, dt=dt, roundabout_bonus=side.bonus,
+        )  # fmt: skip
+        wish = jax.tree.map(
+            lambda new, old, may=side.may: jnp.where(may, new, old),
+            wish,
+            Wish(0, sgp, krp, look, jnp.full(3, jnp.nan), jnp.nan, 0, jnp.nan, 0),
+        )
+        sgp = wish.speed_gain_probability
+        krp = wish.keep_right_probability
+        look = wish.look_ahead_speed
+        states[direction] = jnp.where(side.may, wish.state | blocked, 0)
+        for advice in wish.own_advices:
+            advices = push_advice(advices, advice)
+        memory = _told(memory, side.lead_slot, wish.leader_speed, wish.leader_bits)
+        memory = _told(
+            memory, side.follow_slot, wish.follower_speed, wish.follower_bits
+        )
+    state_right, state_left = states[-1], states[1]
+
+    def wants(s: jax.Array, bit: int) -> jax.Array:
+        return (s & bit) != 0
+
+    go_right = wants(state_right, lca.RIGHT) & ~wants(state_right, lca.BLOCKED)
+    go_left = ~go_right & wants(state_left, lca.LEFT) & ~wants(state_left, lca.BLOCKED)
+    urgent_right = wants(state_right, lca.RIGHT) & wants(state_right, lca.URGENT)
+    urgent_left = wants(state_left, lca.LEFT) & wants(state_left, lca.URGENT)
+    both_urgent = wants(state_right, lca.URGENT) & wants(state_left, lca.URGENT)
+    change_state = jnp.where(go_right, state_right, jnp.where(go_left, state_left, 0))
+    turn = Turn(
+        direction=jnp.where(go_right, -1, jnp.where(go_left, 1, 0)),
+        change_state=change_state,
+        kept=state_right | jnp.where(both_urgent, 0, state_left),
+        blocked_right=urgent_right & ~go_right,
+        blocked_left=urgent_left & ~go_right & ~go_left,
+        state_right=state_right,
+        state_left=state_left,
+    )
+    memory = memory.replace(
+        speed_gain_probability=memory.speed_gain_probability.at[i].set(sgp),
+        keep_right_probability=memory.keep_right_probability.at[i].set(krp),
+        look_ahead_speed=memory.look_ahead_speed.at[i].set(look),
+        advices=memory.advices.at[i].set(advices),
+    )
+    return turn, memory
