@@ -1,0 +1,233 @@
+"""Who a vehicle sees when it considers a lane change on a roundabout's lane
+paths, and the roundabout bonus: the geometry half of
+`jaxround.lanes.ring_changer`.
+
+SUMO 1.28's rules as read in docs/lc2013-map.md section 2 and measured in
+section 12 there:
+
+- `leader_on` (`MSLaneChanger::getRealLeader`): the nearest vehicle ahead
+  on the lane, as the vehicles ahead of the candidate left it; failing
+  that, one whose back is still on the lane; failing that, if the lane ends
+  within ``brakeGap(v) + minGap`` (or the candidate is on an internal lane),
+  the nearest vehicle on the lanes the path goes on to that begin within
+  that distance (`MSLane::getLeaderOnConsecutive`, link leaders left out).
+- `follower_on` (`MSLaneChanger::getRealFollower`): the nearest vehicle
+  behind on the lane that has not had its turn; failing that, among the
+  vehicles on the lanes upstream (`MSLane::getFollowersOnConsecutive`, to
+  the lanes' braking distance), the one whose secure gap is most violated,
+  one coming over a minor link with its gap floored at 0.
+- `roundabout_bonus` (`MSLCHelper::getRoundaboutDistBonus`), on the tables
+  of `jaxround.lanes.ring_tables`.
+
+Shapes: M vehicle slots, L lanes, P paths, K path positions, Z lanes of an
+edge, C, U as in `jaxround.lanes.ring_tables`.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxround.lanes import follow
+from jaxround.lanes.follow import Driver
+from jaxround.lanes.ring_tables import BONUS_LOOK_AHEAD_M, RingLanes
+
+#: `getRoundaboutDistBonus`: metres of bonus per roundabout junction ahead.
+BONUS_PER_JUNCTION_M = 7.5
+
+
+class RingArrays(NamedTuple):
+    """`RingLanes` as device arrays (see there; nan offsets stay nan)."""
+
+    lane_length: jax.Array
+    lane_speed: jax.Array
+    lane_internal: jax.Array
+    lane_index: jax.Array
+    lane_side: jax.Array  # (L, 2) right and left neighbour
+    lane_order: jax.Array  # (L,) scan order of each lane's edge
+    lane_brake_dist: jax.Array  # (L,) `MSLane::getMaximumBrakeDist`
+    path_lanes: jax.Array
+    path_lane_start: jax.Array  # +inf padded
+    lane_offset: jax.Array
+    change_path: jax.Array
+    edge_lanes: jax.Array
+    laneq_length: jax.Array
+    laneq_offset: jax.Array
+    laneq_ends: jax.Array
+    laneq_next: jax.Array
+    bonus_junctions: jax.Array
+    bonus_seen: jax.Array
+    bonus_distance: jax.Array
+    bonus_outer: jax.Array
+    bonus_inner: jax.Array
+    bonus_outer_here: jax.Array
+    bonus_inner_here: jax.Array
+    upstream_lane: jax.Array
+    upstream_dist: jax.Array
+    upstream_minor: jax.Array
+
+    @classmethod
+    def from_tables(
+        cls, tables: RingLanes, max_speed_factor: float, min_decel: float
+    ) -> RingArrays:
+        """Args: the tables; SUMO's largest speed factor and smallest decel
+        of the loaded vTypes (`MSVehicleControl`), for the followers' search."""
+        paths = tables.paths
+        f = jnp.result_type(float)
+        edge_of = [lid.rsplit("_", 1)[0] for lid in paths.lane_ids]
+        edge_rank = {e: r for r, e in enumerate(dict.fromkeys(edge_of))}
+        brake = (tables.lane_speed * max_speed_factor) ** 2 * 0.5 / min_decel
+        start = np.where(np.isnan(paths.path_lane_start), np.inf, paths.path_lane_start)
+        return cls(
+            lane_length=jnp.asarray(paths.lane_length, f),
+            lane_speed=jnp.asarray(tables.lane_speed, f),
+            lane_internal=jnp.asarray(paths.lane_internal),
+            lane_index=jnp.asarray(paths.lane_index),
+            lane_side=jnp.asarray(np.stack([paths.lane_right, paths.lane_left], 1)),
+            lane_order=jnp.asarray([edge_rank[e] for e in edge_of]),
+            lane_brake_dist=jnp.asarray(brake, f),
+            path_lanes=jnp.asarray(paths.path_lanes),
+            path_lane_start=jnp.asarray(start, f),
+            lane_offset=jnp.asarray(paths.lane_offset, f),
+            change_path=jnp.asarray(paths.change_path),
+            edge_lanes=jnp.asarray(tables.edge_lanes),
+            laneq_length=jnp.asarray(tables.laneq_length, f),
+            laneq_offset=jnp.asarray(tables.laneq_offset),
+            laneq_ends=jnp.asarray(tables.laneq_ends_in_links),
+            laneq_next=jnp.asarray(tables.laneq_next),
+            bonus_junctions=jnp.asarray(tables.bonus_junctions),
+            bonus_seen=jnp.asarray(tables.bonus_seen, f),
+            bonus_distance=jnp.asarray(tables.bonus_distance, f),
+            bonus_outer=jnp.asarray(tables.bonus_outer),
+            bonus_inner=jnp.asarray(tables.bonus_inner),
+            bonus_outer_here=jnp.asarray(tables.bonus_outer_here),
+            bonus_inner_here=jnp.asarray(tables.bonus_inner_here),
+            upstream_lane=jnp.asarray(tables.upstream_lane),
+            upstream_dist=jnp.asarray(tables.upstream_dist, f),
+            upstream_minor=jnp.asarray(tables.upstream_minor),
+        )
+
+
+class Scene(NamedTuple):
+    """The vehicles as a candidate sees them at its turn. (M,) each.
+
+    Attributes:
+        lane: lanes, as the vehicles ahead of the candidate left them.
+        on_lane: front position on the lane (m).
+        speed: m/s; driver: `Driver` of (M,) arrays.
+        others: active and not the candidate.
+        done: had its turn this step.
+    """
+
+    lane: jax.Array
+    on_lane: jax.Array
+    speed: jax.Array
+    driver: Driver
+    others: jax.Array
+    done: jax.Array
+
+
+def leader_on(
+    net: RingArrays,
+    scene: Scene,
+    i: jax.Array,
+    path: jax.Array,
+    target: jax.Array,
+    own: jax.Array,
+    dt: float,
+) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Vehicle ``i``'s leader on lane ``target`` of ``path`` (its own lane
+    ``own`` or a neighbour): (slot, exists, gap net of its minGap)."""
+    lane, on_lane, driver = scene.lane, scene.on_lane, scene.driver
+    pos_i, min_gap_i = on_lane[i], driver.min_gap[i]
+    me = jax.tree.map(lambda x: x[i], driver)
+    front = net.lane_offset[path, lane] + on_lane  # along the path, nan: off it
+    back = front - driver.length
+    me_at = net.lane_offset[path, target] + pos_i
+    lane_end = net.lane_offset[path, target] + net.lane_length[target]
+    ahead_on_lane = (on_lane > pos_i) | ((on_lane == pos_i) & scene.done)
+    same = scene.others & (lane == target) & ahead_on_lane
+    partly = scene.others & (lane != target) & (front >= lane_end) & (back < lane_end)
+    dist = follow.brake_gap(me, scene.speed[i], dt) + min_gap_i
+    lane_start_j = net.lane_offset[path, lane]
+    reach = ((lane_end - me_at <= dist) & (lane_start_j - me_at <= dist)) | (
+        net.lane_internal[own]
+    )
+    later = scene.others & (lane != target) & (lane_start_j >= lane_end) & reach
+    gap = back - me_at - min_gap_i
+
+    def within(mask: jax.Array) -> jax.Array:
+        return jnp.where(mask, gap, jnp.inf)
+
+    first = jnp.where(
+        jnp.any(same), within(same),
+        jnp.where(jnp.any(partly), within(partly), within(later)),
+    )  # fmt: skip
+    slot = jnp.argmin(first)
+    return slot, jnp.isfinite(first[slot]), first[slot]
+
+
+def follower_on(
+    net: RingArrays, scene: Scene, i: jax.Array, target: jax.Array
+) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Vehicle ``i``'s follower on lane ``target``: (slot, exists, gap net of
+    the follower's minGap)."""
+    lane, on_lane, driver = scene.lane, scene.on_lane, scene.driver
+    back_i = on_lane[i] - driver.length[i]
+    same = scene.others & ~scene.done & (lane == target) & (on_lane <= on_lane[i])
+    d_same = jnp.where(same, back_i - on_lane - driver.min_gap, jnp.inf)
+    ups = net.upstream_lane[target]  # (U,)
+    up_dist = net.upstream_dist[target]
+    up_brake = jnp.where(ups >= 0, net.lane_brake_dist[jnp.maximum(ups, 0)], 0.0)
+    search = jnp.maximum(net.lane_brake_dist[target], jnp.max(up_brake)) - back_i
+    # (M, U): vehicle j on upstream lane u, within the search
+    on_up = (lane[:, None] == ups[None, :]) & (ups[None, :] >= 0)
+    reached = up_dist - net.lane_length[jnp.maximum(ups, 0)] < search
+    agap = up_dist[None, :] - on_lane[:, None] + back_i - driver.min_gap[:, None]
+    minor = net.upstream_minor[target][None, :]
+    agap = jnp.where(minor, jnp.maximum(agap, 0.0), agap)
+    ok = on_up & reached[None, :] & scene.others[:, None]
+    agap_j = jnp.min(jnp.where(ok, agap, jnp.inf), axis=1)  # (M,)
+    missing = follow.secure_gap(driver, scene.speed, scene.speed[i]) - agap_j
+    up_slot = jnp.argmax(jnp.where(jnp.isfinite(agap_j), missing, -jnp.inf))
+    has_up = jnp.isfinite(agap_j[up_slot])
+    same_slot = jnp.argmin(d_same)
+    has_same = jnp.isfinite(d_same[same_slot])
+    slot = jnp.where(has_same, same_slot, up_slot)
+    gap = jnp.where(has_same, d_same[same_slot], agap_j[up_slot])
+    return slot, has_same | has_up, gap
+
+
+def roundabout_bonus(
+    net: RingArrays,
+    occupied: jax.Array,
+    at: tuple[jax.Array, ...],
+    own: jax.Array,
+    pos: jax.Array,
+    cooperative: jax.Array,
+) -> jax.Array:
+    """`getRoundaboutDistBonus` (m) for the look tabled at ``at`` = (path,
+    position, own lane index, side), with the lanes' summed lengths with gap
+    ``occupied`` (L,), the vehicle on lane ``own`` at ``pos``."""
+    junctions = net.bonus_junctions[at]
+    length = net.lane_length[own]
+
+    def occupancy(lanes: jax.Array, here: jax.Array) -> jax.Array:
+        weight = jnp.where(here, (length - pos) / length, 1.0)
+        load = occupied[jnp.maximum(lanes, 0)] * weight
+        return jnp.sum(jnp.where(lanes >= 0, load, 0.0))
+
+    outer = occupancy(net.bonus_outer[at], net.bonus_outer_here[at])
+    inner = occupancy(net.bonus_inner[at], net.bonus_inner_here[at])
+    most = jnp.maximum(outer, inner)
+    extra = BONUS_PER_JUNCTION_M * junctions
+    jam = jnp.maximum(0.0, (outer - inner + extra) / jnp.maximum(most + extra, 1e-9))
+    value = net.bonus_distance[at] * jam * cooperative * 9.0
+    applies = (
+        (junctions >= 2) & (most > 0)
+        & (net.bonus_seen[at] - pos <= BONUS_LOOK_AHEAD_M)
+    )  # fmt: skip
+    return jnp.where(applies, value, 0.0)
