@@ -1,0 +1,85 @@
+"""LC2013 on the two-lane roundabout in JAX (`jaxround.lanes.ring_changer`)
+against SUMO 1.28, decision by decision (`jaxround.apps.ring_lane_replay`).
+
+SUMO runs; every step, the JAX changer decides from SUMO's state before
+SUMO's own changes of the step, carrying its own LC2013 memory, and its
+changes are compared with SUMO's: same vehicle, step and direction.
+
+- Every route driven alone (one vehicle every 40 s): the roundabout bonus's
+  move to the left entry lane and the return to the outer lane before the
+  exit, exactly as SUMO makes them, on configs/two_lane.yaml and on the
+  held-out five-leg roundabout (one- and two-lane entries and exits).
+- Ten minutes of two_lane.yaml's traffic: most of SUMO's changes made in
+  the same step. What is missing is docs/lc2013-map.md section 12's: a 1.28
+  rule that holds back a cooperative change onto the left entry lane while
+  a vehicle approaches on the inner ring lane, and cases where SUMO's
+  roundabout bonus is larger than the 2023 source's.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from jaxround.apps.ring_lane_replay import record_sumo, replay
+from jaxround.lanes.best_lanes import LookAheadDriver
+from jaxround.lanes.ring_tables import ring_lanes
+from jaxround.scenario.config import ScenarioConfig, load_config
+from jaxround.scenario.schedule import Schedule, make_schedule
+from jaxround.sumo_files.netconvert import network_file
+from tests.sumo.two_lane_networks import five_legs
+
+pytestmark = pytest.mark.sumo
+
+#: Seconds between two vehicles driving alone.
+ALONE_S = 40.0
+
+
+def tables_for(cfg: ScenarioConfig):
+    driver = LookAheadDriver.from_config(cfg.drivers.hv, cfg.simulation.dt_s)
+    return ring_lanes(network_file(cfg), driver)
+
+
+def every_route_alone(cfg: ScenarioConfig) -> Schedule:
+    n = cfg.n_legs
+    od = [(o, d) for o in range(n) for d in range(n) if o != d]
+    return Schedule(
+        depart_s=np.arange(len(od)) * ALONE_S,
+        origin=np.array([o for o, _ in od], np.int32),
+        destination=np.array([d for _, d in od], np.int32),
+        speed_factor=np.ones(len(od)),
+        av_rank=np.arange(len(od), dtype=np.int32),
+        penetration=0.0,
+    )
+
+
+@pytest.mark.parametrize("name", ["two_lane", "five_legs"])
+def test_every_route_alone_changes_as_in_sumo(name: str) -> None:
+    cfg = load_config("two_lane") if name == "two_lane" else five_legs()
+    tables = tables_for(cfg)
+    schedule = every_route_alone(cfg)
+    steps, reasons = record_sumo(
+        cfg, tables.paths, ALONE_S * schedule.n_vehicles, schedule
+    )
+    tally = replay(cfg, tables, steps, reasons)["tally"]
+    # each route past two or more junctions: left on the entry, right on the
+    # ring's last edge; routes to the next exit: none
+    passing = sum(
+        1 for o, d in zip(schedule.origin, schedule.destination, strict=True)
+        if (d - o) % cfg.n_legs >= 2
+    )  # fmt: skip
+    assert tally["sumo"] == 2 * passing
+    assert tally.get("sumo cooperative") == tally.get("sumo strategic|urgent")
+    assert tally["matched"] == tally["sumo"] == tally["jax"]
+
+
+def test_traffic_changes_mostly_in_the_same_step() -> None:
+    cfg = load_config("two_lane")
+    tables = tables_for(cfg)
+    steps, reasons = record_sumo(cfg, tables.paths, 600.0, make_schedule(cfg, 0))
+    tally = replay(cfg, tables, steps, reasons)["tally"]
+    assert tally["sumo"] > 300
+    # measured 384 of 414 (2026-11-26); the rest: docs/lc2013-map.md section 12
+    assert tally["matched"] >= 0.9 * tally["sumo"]
+    # vehicles JAX moves where SUMO does not (131): the known gaps, bounded
+    assert tally["jax only, vehicles"] <= 0.4 * tally["sumo"]
