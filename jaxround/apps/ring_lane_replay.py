@@ -200,6 +200,7 @@ def replay(
     min_decel = min(cfg.drivers.hv.decel, cfg.drivers.av.decel, 4.5)
     net = ring_changer.RingArrays.from_tables(tables, MAX_SPEED_FACTOR, min_decel)
     # slots in sixteens, so that runs of similar traffic share one compilation
+    # (a step costs about M^2: the scan takes M turns of (M,) work)
     n_slots = 16 * -(-(max(len(s.ids) for s in steps) + 8) // 16)
     hv, av = _driver(cfg.drivers.hv), _driver(cfg.drivers.av)
     memory = Memory.zeros(n_slots)
