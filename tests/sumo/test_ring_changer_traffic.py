@@ -1,0 +1,33 @@
+"""LC2013 on the two-lane roundabout in JAX against SUMO 1.28 in traffic,
+decision by decision (`jaxround.apps.ring_lane_replay`; the vehicles alone:
+`test_ring_changer.py`).
+
+Five minutes of configs/two_lane.yaml's traffic: most of SUMO's changes made
+in the same step. What is missing is docs/lc2013-map.md section 12's: a
+1.28 rule that holds back a cooperative change onto the left entry lane
+while a vehicle approaches on the inner ring lane, and cases where SUMO's
+roundabout bonus is larger than the 2023 source's.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from jaxround.apps.ring_lane_replay import record_sumo, replay
+from jaxround.scenario.config import load_config
+from jaxround.scenario.schedule import make_schedule
+from tests.sumo.test_ring_changer import tables_for
+
+pytestmark = pytest.mark.sumo
+
+
+def test_traffic_changes_mostly_in_the_same_step() -> None:
+    cfg = load_config("two_lane")
+    tables = tables_for(cfg)
+    steps, reasons = record_sumo(cfg, tables.paths, 300.0, make_schedule(cfg, 0))
+    tally = replay(cfg, tables, steps, reasons)["tally"]
+    assert tally["sumo"] > 150
+    # measured 185 of 203 (2026-11-26); the rest: docs/lc2013-map.md section 12
+    assert tally["matched"] >= 0.88 * tally["sumo"]
+    # vehicles JAX moves where SUMO does not (56): the known gaps, bounded
+    assert tally["jax only, vehicles"] <= 0.4 * tally["sumo"]
