@@ -9,7 +9,7 @@ its lanes became occupied, which only matters where a neighbour is found
 on another edge), front to back within an edge, ties to the right lane.
 
 What a candidate sees, as `MSLaneChanger::getRealLeader`/`getRealFollower`
-find it (SUMO 1.28 source read as in docs/lc2013-map.md section 2):
+find it (SUMO's source as read in docs/lc2013-map.md section 2):
 
 - a leader on its own or the target lane: the nearest vehicle ahead on
   that lane as the vehicles ahead of it left it; failing that, one whose

@@ -2,8 +2,8 @@
 paths, and the roundabout bonus: the geometry half of
 `jaxround.lanes.ring_changer`.
 
-SUMO 1.28's rules as read in docs/lc2013-map.md section 2 and measured in
-section 12 there:
+SUMO's rules as read in docs/lc2013-map.md section 2, and as SUMO 1.28 was
+measured to apply them in section 12 there:
 
 - `leader_on` (`MSLaneChanger::getRealLeader`): the nearest vehicle ahead
   on the lane, as the vehicles ahead of the candidate left it; failing
