@@ -73,6 +73,13 @@ QUICK_ENV = "JAX_DISABLE_MOST_OPTIMIZATIONS"
 SESSION_CACHE_ENV = "JAXROUND_TEST_SESSION_CACHE"
 
 
+def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
+    """``-n auto``: one worker more than the cores. Some tests mostly wait
+    (the study's browser rides run in real time, SUMO runs in its own
+    processes), and a spare worker uses the core they leave idle."""
+    return (os.cpu_count() or 1) + 1
+
+
 def pytest_configure(config: pytest.Config) -> None:
     """One cache for the session: XLA programs and slot sizings, fresh per run.
 
