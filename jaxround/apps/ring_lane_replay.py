@@ -283,12 +283,18 @@ def _seen(sight: Any, slot: int, id_of: dict[int, str]) -> dict[str, Any]:
         out[name] = {
             "state": reason_bits(int(sight.state[slot, side])),
             "lead": id_of.get(int(sight.lead[slot, side])),
-            "lead_gap": round(float(sight.lead_gap[slot, side]), 2),
+            "lead_gap": _finite(sight.lead_gap[slot, side]),
             "follow": id_of.get(int(sight.follow[slot, side])),
-            "follow_gap": round(float(sight.follow_gap[slot, side]), 2),
+            "follow_gap": _finite(sight.follow_gap[slot, side]),
             "bonus": round(float(sight.bonus[slot, side]), 1),
         }
     return out
+
+
+def _finite(x: Any) -> float | None:
+    """A gap for JSON: rounded, None where there is nobody (inf)."""
+    x = float(x)
+    return round(x, 2) if np.isfinite(x) else None
 
 
 def reason_bits(state: int) -> str:
