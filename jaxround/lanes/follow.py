@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 from jax.typing import ArrayLike
 
-from jaxround.core import idm
+from jaxround.core import command, idm
 from jaxround.core.junction import brake_gap as euler_brake_gap
 
 
@@ -113,6 +113,7 @@ def stop_speed(
 
 def min_next_speed(driver: Driver, v: ArrayLike, dt: float) -> jax.Array:
     """`MSCFModel_IDM::minNextSpeed`: braking at most at
-    ``max(decel, min(emergencyDecel, 1.5))`` in one step, not below 0."""
-    decel = jnp.maximum(driver.decel, jnp.minimum(driver.emergency_decel, 1.5))
-    return jnp.maximum(jnp.asarray(v) - decel * dt, 0.0)
+    ``max(decel, min(emergencyDecel, 1.5))`` in one step, not below 0
+    (`jaxround.core.command.min_next_speed`, which reads the same two
+    fields)."""
+    return command.min_next_speed(jnp.asarray(v), driver, dt)

@@ -328,10 +328,6 @@ class _RouteLanes:
             for after in self.forward(lane):
                 if before + after not in found:
                     found.append(before + after)
-        for lane in self.succ:
-            if not any(lane in seq for seq in found):
-                before = self.backward(lane, lanes)
-                found += [before + after for after in self.forward(lane)]
         return found
 
     def keep_lane_path(

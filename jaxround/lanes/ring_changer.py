@@ -39,6 +39,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxround.lanes import ring_neighbours as neighbours
+from jaxround.lanes.changer import FAR, _pick
 from jaxround.lanes.decide import Side, take_turn
 from jaxround.lanes.follow import Driver
 from jaxround.lanes.inform import slow_down_for_blocked
@@ -46,9 +47,6 @@ from jaxround.lanes.memory import after_change
 from jaxround.lanes.params import LaneChangeParams
 from jaxround.lanes.ring_neighbours import RingArrays, Scene
 from jaxround.lanes.views import Ego, LaneQ, Memory, Neighbour, push_advice
-
-#: Far away (m).
-FAR = 1e9
 
 
 class RingVehicles(NamedTuple):
@@ -103,10 +101,6 @@ def locate(net: RingArrays, path: jax.Array, pos: jax.Array) -> tuple[jax.Array,
     lane = jnp.take_along_axis(net.path_lanes[path], k[:, None], axis=1)[:, 0]
     start = jnp.take_along_axis(starts, k[:, None], axis=1)[:, 0]
     return k, lane, pos - start
-
-
-def _pick(tree, index):
-    return jax.tree.map(lambda x: x[index] if jnp.ndim(x) >= 1 else x, tree)
 
 
 def change_lanes(
