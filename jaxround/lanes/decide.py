@@ -60,15 +60,37 @@ class Side(NamedTuple):
     bonus: jax.Array | float
 
 
-def _told(memory: Memory, slot: jax.Array, speed: jax.Array, bits: jax.Array) -> Memory:
-    """`inform`: a speed advice and state bits to vehicle ``slot`` at once."""
-    return memory.replace(
-        advices=memory.advices.at[slot].set(push_advice(memory.advices[slot], speed)),
-        state=memory.state.at[slot].set(memory.state[slot] | bits),
-    )
+class Told(NamedTuple):
+    """The messages of one turn (`informLeader`/`informFollower`): to the
+    right lane's leader and follower, then the left's. (4,) each: the
+    receiver's slot, a speed advice (NaN: none) and state bits (0: none)."""
+
+    slot: jax.Array
+    speed: jax.Array
+    bits: jax.Array
 
 
-def take_turn(
+class Kept(NamedTuple):
+    """What a turn leaves in the candidate's own memory. Scalars, and its
+    advices (A,)."""
+
+    speed_gain_probability: jax.Array
+    keep_right_probability: jax.Array
+    look_ahead_speed: jax.Array
+    advices: jax.Array
+
+
+def deliver(memory: Memory, told: Told) -> Memory:
+    """`inform`: each message's advice and state bits to its receiver."""
+    advices, state = memory.advices, memory.state
+    for n in range(told.slot.shape[0]):
+        slot = told.slot[n]
+        advices = advices.at[slot].set(push_advice(advices[slot], told.speed[n]))
+        state = state.at[slot].set(state[slot] | told.bits[n])
+    return memory.replace(advices=advices, state=state)
+
+
+def turn_of(
     i: jax.Array,
     memory: Memory,
     state: jax.Array,
@@ -81,25 +103,27 @@ def take_turn(
     left: Side,
     lc: LaneChangeParams,
     dt: float,
-) -> tuple[Turn, Memory]:
-    """Vehicle ``i``'s turn: right first, then left (`MSLaneChanger::change`).
+) -> tuple[Turn, Kept, Told]:
+    """Vehicle ``i``'s turn: right first, then left (`MSLaneChanger::change`),
+    written nowhere.
 
     Args:
         i: its slot.
-        memory: every vehicle's memory so far this step (others' messages in).
-        state, advices: its own state and advices after `slowDownForBlocked`.
+        memory: its probabilities and look-ahead speed are read (row ``i``).
+        state, advices: its own state and advices at its turn, others'
+            messages and `slowDownForBlocked` in.
         curr, best: the LaneQ of its lane and of its best lane.
         leader: the leader on its own lane.
         right, left: what it sees on each side.
 
     Returns:
-        (turn, memory): its decision, and the memory with its new state,
-        probabilities, look-ahead speed and advices, and its messages.
+        (turn, kept, told): its decision, what it keeps (its new
+        probabilities, look-ahead speed and advices) and its messages.
     """
     sgp = memory.speed_gain_probability[i]
     krp = memory.keep_right_probability[i]
     look = memory.look_ahead_speed[i]
-    states = {}
+    states, told = {}, []
     for direction, side in ((-1, right), (1, left)):
         blocked = check_change(direction, side.ego, side.lead, side.follow, lc)
         wish = wants_change(
@@ -119,10 +143,8 @@ def take_turn(
         states[direction] = jnp.where(side.may, wish.state | blocked, 0)
         for advice in wish.own_advices:
             advices = push_advice(advices, advice)
-        memory = _told(memory, side.lead_slot, wish.leader_speed, wish.leader_bits)
-        memory = _told(
-            memory, side.follow_slot, wish.follower_speed, wish.follower_bits
-        )
+        told.append((side.lead_slot, wish.leader_speed, wish.leader_bits))
+        told.append((side.follow_slot, wish.follower_speed, wish.follower_bits))
     state_right, state_left = states[-1], states[1]
 
     def wants(s: jax.Array, bit: int) -> jax.Array:
@@ -143,10 +165,32 @@ def take_turn(
         state_right=state_right,
         state_left=state_left,
     )
-    memory = memory.replace(
-        speed_gain_probability=memory.speed_gain_probability.at[i].set(sgp),
-        keep_right_probability=memory.keep_right_probability.at[i].set(krp),
-        look_ahead_speed=memory.look_ahead_speed.at[i].set(look),
-        advices=memory.advices.at[i].set(advices),
+    messages = Told(*(jnp.stack(column) for column in zip(*told, strict=True)))
+    return turn, Kept(sgp, krp, look, advices), messages
+
+
+def keep(memory: Memory, i: jax.Array, kept: Kept) -> Memory:
+    """Write what vehicle ``i``'s turn keeps into its row of ``memory``."""
+    return memory.replace(
+        speed_gain_probability=memory.speed_gain_probability.at[i].set(
+            kept.speed_gain_probability
+        ),
+        keep_right_probability=memory.keep_right_probability.at[i].set(
+            kept.keep_right_probability
+        ),
+        look_ahead_speed=memory.look_ahead_speed.at[i].set(kept.look_ahead_speed),
+        advices=memory.advices.at[i].set(kept.advices),
     )
-    return turn, memory
+
+
+def take_turn(
+    i: jax.Array,
+    memory: Memory,
+    state: jax.Array,
+    advices: jax.Array,
+    **views: object,
+) -> tuple[Turn, Memory]:
+    """`turn_of` with its messages delivered and what it keeps written, in
+    a changer that takes the vehicles one by one (keywords as there)."""
+    turn, kept, told = turn_of(i, memory, state, advices, **views)
+    return turn, keep(deliver(memory, told), i, kept)

@@ -40,7 +40,7 @@ import jax.numpy as jnp
 
 from jaxround.lanes import ring_neighbours as neighbours
 from jaxround.lanes.changer import FAR, _pick
-from jaxround.lanes.decide import Side, take_turn
+from jaxround.lanes.decide import Kept, Side, Told, deliver, keep, turn_of
 from jaxround.lanes.follow import Driver
 from jaxround.lanes.inform import slow_down_for_blocked
 from jaxround.lanes.memory import after_change
@@ -103,6 +103,203 @@ def locate(net: RingArrays, path: jax.Array, pos: jax.Array) -> tuple[jax.Array,
     return k, lane, pos - start
 
 
+class Context(NamedTuple):
+    """What every turn of one step reads: the network, the vehicles after
+    the move (`RingVehicles`), the parameters, and where the vehicles stand
+    before any change ((M,) each: path position ``k``, ``lane``, ``on_lane``
+    position (m), ``brutto`` length + minGap (m); (M, L) ``v_max_on``
+    `getVehicleMaxSpeed` on every lane), and ``order`` (M,) their turns."""
+
+    net: RingArrays
+    veh: RingVehicles
+    lc: LaneChangeParams
+    dt: float
+    k: jax.Array
+    lane: jax.Array
+    on_lane: jax.Array
+    brutto: jax.Array
+    v_max_on: jax.Array
+    order: jax.Array
+
+
+class View(NamedTuple):
+    """What one vehicle finds at its turn, left by the turns before it:
+    the lanes (M,) and who had a turn (M,); the last and first vehicle
+    registered blocked on its lane (slots, -1: none); its state and
+    advices (A,) with the messages it got."""
+
+    lane: jax.Array
+    done: jax.Array
+    last_blocked: jax.Array
+    first_blocked: jax.Array
+    state: jax.Array
+    advices: jax.Array
+
+
+class Outcome(NamedTuple):
+    """One vehicle's turn. Scalars unless said.
+
+    Attributes:
+        direction: -1/0/+1; change_state: the state it changed with (0: none).
+        state: its `myOwnState` after the turn (before `changed()`).
+        kept: its probabilities, look-ahead speed and advices.
+        told: its messages (4,).
+        blocked, target: (2,) right and left: registered blocked on the
+            target lane, and that lane.
+        to_lane, to_path: where a change takes it.
+        sight: what it saw, (2,) each.
+    """
+
+    direction: jax.Array
+    change_state: jax.Array
+    state: jax.Array
+    kept: Kept
+    told: Told
+    blocked: jax.Array
+    target: jax.Array
+    to_lane: jax.Array
+    to_path: jax.Array
+    sight: Sight
+
+
+def context(
+    net: RingArrays, veh: RingVehicles, lc: LaneChangeParams, dt: float
+) -> Context:
+    """The step's `Context`; the turns go edge by edge in lane-table order,
+    front to back within an edge, ties to the right lane."""
+    k, lane, on_lane = locate(net, veh.path, veh.pos)
+    order = jnp.lexsort((net.lane_index[lane], -on_lane, net.lane_order[lane],
+                         ~veh.active))  # fmt: skip
+    v_max_on = jnp.minimum(
+        veh.driver.max_speed[:, None],
+        net.lane_speed[None, :] * veh.speed_factor[:, None],
+    )
+    brutto = veh.driver.length + veh.driver.min_gap
+    return Context(net, veh, lc, dt, k, lane, on_lane, brutto, v_max_on, order)
+
+
+def turn(ctx: Context, i: jax.Array, view: View, memory: Memory) -> Outcome:
+    """Vehicle ``i``'s turn, as it finds the step (``memory``: its
+    probabilities and look-ahead speed, row ``i``, are read)."""
+    net, veh, dt = ctx.net, ctx.veh, ctx.dt
+    driver, lane, on_lane = veh.driver, view.lane, ctx.on_lane
+    slots = jnp.arange(veh.pos.shape[0])
+    me = _pick(driver, i)
+    lc_i = _pick(ctx.lc, i)
+    p, k, own, pos_i = veh.path[i], ctx.k[i], ctx.lane[i], on_lane[i]
+    active_i = veh.active[i]
+    others = veh.active & (slots != i)
+    n_lanes = net.lane_length.shape[0]
+    weight = jnp.where(veh.active, ctx.brutto, 0.0)
+    occupied = jnp.zeros(n_lanes).at[lane].add(weight)
+    scene = Scene(lane=lane, on_lane=on_lane, speed=veh.speed, driver=driver,
+                  others=others, done=view.done)  # fmt: skip
+
+    def neighbour(slot, exists, gap) -> Neighbour:
+        return Neighbour(
+            exists=exists, gap=jnp.where(exists, gap, FAR), speed=veh.speed[slot],
+            accel=veh.accel[slot], driver=_pick(driver, slot),
+            v_max=ctx.v_max_on[slot, lane[slot]],
+        )  # fmt: skip
+
+    # occupation: dens on this edge + nextOccupation beyond it
+    edge = net.edge_lanes[p, k]  # (Z,)
+    dens = jnp.sum(
+        jnp.where(view.done[None, :] & (lane[None, :] == edge[:, None]), weight, 0.0),
+        axis=1,
+    )
+    nxt = net.laneq_next[p, k]  # (Z, C)
+    next_occ = jnp.sum(jnp.where(nxt >= 0, occupied[jnp.maximum(nxt, 0)], 0.0), 1)
+    z_own = net.lane_index[own]
+
+    def laneq(z):
+        zc = jnp.clip(z, 0, edge.shape[0] - 1)
+        return LaneQ(
+            length=net.laneq_length[p, k, zc],
+            best_lane_offset=net.laneq_offset[p, k, zc],
+            occupation=dens[zc] + next_occ[zc],
+            ends_in_links=net.laneq_ends[p, k, zc],
+        )
+
+    def ego_view(target):
+        return Ego(
+            speed=veh.speed[i], accel=veh.accel[i], pos=pos_i, driver=me,
+            v_max=ctx.v_max_on[i, own], neigh_v_max=ctx.v_max_on[i, target],
+            speed_limit=net.lane_speed[own], lane_length=net.lane_length[own],
+        )  # fmt: skip
+
+    curr = laneq(z_own)
+    best = laneq(z_own + curr.best_lane_offset)
+    own_lead, own_exists, own_gap = neighbours.leader_on(net, scene, i, p, own, own, dt)
+    leader = neighbour(own_lead, own_exists, own_gap)
+    state_me, advices_me = view.state, view.advices
+    for blocker in (view.last_blocked, view.first_blocked):
+        b = jnp.maximum(blocker, 0)
+        bits, advice = slow_down_for_blocked(
+            ego_view(own), neighbour(b, blocker >= 0, 0.0), on_lane[b], dt
+        )
+        state_me = state_me | bits
+        advices_me = push_advice(advices_me, advice)
+    sides, targets, paths, seen = [], [], [], []
+    for side in (0, 1):
+        tz = jnp.maximum(net.lane_side[own, side], 0)
+        q = jnp.maximum(net.change_path[p, k, side], 0)
+        lead = neighbours.leader_on(net, scene, i, q, tz, own, dt)
+        back = neighbours.follower_on(net, scene, i, tz)
+        bonus = neighbours.roundabout_bonus(
+            net, occupied, (p, k, z_own, side), own, pos_i, lc_i.cooperative
+        )
+        sides.append(Side(
+            may=(net.lane_side[own, side] >= 0)
+            & (net.change_path[p, k, side] >= 0) & active_i,
+            ego=ego_view(tz), neigh=laneq(net.lane_index[tz]),
+            lead=neighbour(*lead), lead_slot=lead[0],
+            follow=neighbour(*back), follow_slot=back[0], bonus=bonus,
+        ))  # fmt: skip
+        targets.append(tz)
+        paths.append(q)
+        seen.append((jnp.where(lead[1], lead[0], -1), lead[2],
+                     jnp.where(back[1], back[0], -1), back[2], bonus))  # fmt: skip
+    decision, kept, told = turn_of(
+        i, memory, state_me, advices_me, curr=curr, best=best, leader=leader,
+        right=sides[0], left=sides[1], lc=lc_i, dt=dt,
+    )  # fmt: skip
+    # no changer on its edge (one lane, or changing not allowed): SUMO
+    # registers it unchanged without asking the model
+    decides = active_i & (net.change_path[p, k] >= 0).any()
+    direction = jnp.where(decides, decision.direction, 0)
+    right, left = direction < 0, direction > 0
+    return Outcome(
+        direction=direction,
+        change_state=jnp.where(direction != 0, decision.change_state, 0),
+        state=jnp.where(decides, decision.kept, view.state),
+        kept=kept,
+        told=told,
+        blocked=jnp.stack([decision.blocked_right, decision.blocked_left]),
+        target=jnp.stack(targets),
+        to_lane=jnp.where(right, targets[0], jnp.where(left, targets[1], own)),
+        to_path=jnp.where(right, paths[0], jnp.where(left, paths[1], p)),
+        sight=Sight(
+            jnp.stack([decision.state_right, decision.state_left]),
+            *(jnp.stack([seen[0][f], seen[1][f]]) for f in range(5)),
+        ),
+    )
+
+
+def changes(ctx: Context, outcome: Outcome) -> RingChanges:
+    """The step's `RingChanges` from every vehicle's outcome ((M,) each)."""
+    net, veh = ctx.net, ctx.veh
+    path = outcome.to_path
+    old_start = jnp.take_along_axis(net.lane_offset[veh.path], ctx.lane[:, None], 1)
+    new_start = jnp.take_along_axis(net.lane_offset[path], outcome.to_lane[:, None], 1)
+    moved = outcome.direction != 0
+    pos = jnp.where(moved, veh.pos - old_start[:, 0] + new_start[:, 0], veh.pos)
+    return RingChanges(
+        path, pos, outcome.to_lane, outcome.direction, outcome.change_state,
+        outcome.sight,
+    )  # fmt: skip
+
+
 def change_lanes(
     net: RingArrays,
     veh: RingVehicles,
@@ -110,164 +307,40 @@ def change_lanes(
     lc: LaneChangeParams,
     dt: float,
 ) -> tuple[RingChanges, Memory]:
-    """Every vehicle's lane change for one step, in SUMO's order.
+    """Every vehicle's lane change for one step, one turn after another in
+    SUMO's order (`jaxround.lanes.ring_rounds` gets the same at once).
 
     Args:
         veh: the vehicles after this step's move.
         memory: their LC2013 memory after `jaxround.lanes.memory.prepare_step`.
         lc: lane-change parameters (scalars or (M,)).
     """
+    ctx = context(net, veh, lc, dt)
     m = veh.pos.shape[0]
     slots = jnp.arange(m)
-    driver = veh.driver
-    k0, lane0, on_lane = locate(net, veh.path, veh.pos)
-    order = jnp.lexsort((net.lane_index[lane0], -on_lane, net.lane_order[lane0],
-                         ~veh.active))  # fmt: skip
-    brutto = driver.length + driver.min_gap
-    v_max_on = jnp.minimum(  # (M, L) getVehicleMaxSpeed on every lane
-        driver.max_speed[:, None], net.lane_speed[None, :] * veh.speed_factor[:, None]
-    )
-    n_lanes = net.lane_length.shape[0]
 
-    def neighbour(slot, exists, gap, lane_of_slot) -> Neighbour:
-        return Neighbour(
-            exists=exists, gap=jnp.where(exists, gap, FAR), speed=veh.speed[slot],
-            accel=veh.accel[slot], driver=_pick(driver, slot),
-            v_max=v_max_on[slot, lane_of_slot],
-        )  # fmt: skip
-
-    def decide(carry, i):
-        lane, path, done, last_blocked, first_blocked, mem, dir_out, state_out = carry
-        me = _pick(driver, i)
-        lc_i = _pick(lc, i)
-        p, k, own, pos_i = path[i], k0[i], lane[i], on_lane[i]
-        active_i = veh.active[i]
-        others = veh.active & (slots != i)
-        occupied = jnp.zeros(n_lanes).at[lane].add(jnp.where(veh.active, brutto, 0.0))
-
-        scene = Scene(lane=lane, on_lane=on_lane, speed=veh.speed, driver=driver,
-                      others=others, done=done)  # fmt: skip
-
-        def leader_on(q, target):
-            return neighbours.leader_on(net, scene, i, q, target, own, dt)
-
-        def follower_on(target):
-            return neighbours.follower_on(net, scene, i, target)
-
-        # occupation: dens on this edge + nextOccupation beyond it
-        edge = net.edge_lanes[p, k]  # (Z,)
-        dens = jnp.array([
-            jnp.sum(jnp.where(veh.active & done & (lane == edge[z]), brutto, 0.0))
-            for z in range(edge.shape[0])
-        ])  # fmt: skip
-        nxt = net.laneq_next[p, k]  # (Z, C)
-        next_occ = jnp.sum(jnp.where(nxt >= 0, occupied[jnp.maximum(nxt, 0)], 0.0), 1)
-        z_own = net.lane_index[own]
-
-        def laneq(z):
-            zc = jnp.clip(z, 0, edge.shape[0] - 1)
-            return LaneQ(
-                length=net.laneq_length[p, k, zc],
-                best_lane_offset=net.laneq_offset[p, k, zc],
-                occupation=dens[zc] + next_occ[zc],
-                ends_in_links=net.laneq_ends[p, k, zc],
-            )
-
-        def ego_view(target):
-            return Ego(
-                speed=veh.speed[i], accel=veh.accel[i], pos=pos_i, driver=me,
-                v_max=v_max_on[i, own], neigh_v_max=v_max_on[i, target],
-                speed_limit=net.lane_speed[own], lane_length=net.lane_length[own],
-            )  # fmt: skip
-
-        def bonus(side):
-            return neighbours.roundabout_bonus(
-                net, occupied, (p, k, z_own, side), own, pos_i, lc_i.cooperative
-            )
-
-        curr = laneq(z_own)
-        best = laneq(z_own + curr.best_lane_offset)
-        own_lead, own_exists, own_gap = leader_on(p, own)
-        leader = neighbour(own_lead, own_exists, own_gap, lane[own_lead])
-        state_me, advices_me = mem.state[i], mem.advices[i]
-        for blocker in (last_blocked[own], first_blocked[own]):
-            b = jnp.maximum(blocker, 0)
-            blocked_view = neighbour(b, blocker >= 0, 0.0, lane[b])
-            bits, advice = slow_down_for_blocked(ego_view(own), blocked_view,
-                                                 on_lane[b], dt)  # fmt: skip
-            state_me = state_me | bits
-            advices_me = push_advice(advices_me, advice)
-        sides, targets, seen = [], [], []
+    def take(carry, i):
+        lane, done, last_blocked, first_blocked, mem = carry
+        own = ctx.lane[i]
+        view = View(lane, done, last_blocked[own], first_blocked[own],
+                    mem.state[i], mem.advices[i])  # fmt: skip
+        out = turn(ctx, i, view, mem)
+        mem = keep(deliver(mem, out.told), i, out.kept)
+        mem = mem.replace(state=mem.state.at[i].set(out.state))
+        mem = after_change(mem, slots == jnp.where(out.direction != 0, i, -1))
         for side in (0, 1):
-            target = net.lane_side[own, side]
-            new_path = net.change_path[p, k, side]
-            tz = jnp.maximum(target, 0)
-            q = jnp.maximum(new_path, 0)
-            lead_slot, lead_exists, lead_gap = leader_on(q, tz)
-            follow_slot, follow_exists, follow_gap = follower_on(tz)
-            sides.append(Side(
-                may=(target >= 0) & (new_path >= 0) & active_i,
-                ego=ego_view(tz), neigh=laneq(net.lane_index[tz]),
-                lead=neighbour(lead_slot, lead_exists, lead_gap, lane[lead_slot]),
-                lead_slot=lead_slot,
-                follow=neighbour(follow_slot, follow_exists, follow_gap,
-                                 lane[follow_slot]),
-                follow_slot=follow_slot, bonus=bonus(side),
-            ))  # fmt: skip
-            targets.append((tz, q))
-            seen.append((
-                jnp.where(lead_exists, lead_slot, -1), lead_gap,
-                jnp.where(follow_exists, follow_slot, -1), follow_gap, sides[-1].bonus,
-            ))  # fmt: skip
-        turn, mem = take_turn(
-            i, mem, state_me, advices_me, curr=curr, best=best, leader=leader,
-            right=sides[0], left=sides[1], lc=lc_i, dt=dt,
-        )  # fmt: skip
-        for blocked_urgent, (tz, _) in zip(
-            (turn.blocked_right, turn.blocked_left), targets, strict=True
-        ):
-            last_blocked = jnp.where(blocked_urgent, last_blocked.at[tz].set(i),
+            target, blocked = out.target[side], out.blocked[side]
+            last_blocked = jnp.where(blocked, last_blocked.at[target].set(i),
                                      last_blocked)  # fmt: skip
             first_blocked = jnp.where(
-                blocked_urgent & (first_blocked[tz] < 0),
-                first_blocked.at[tz].set(i), first_blocked,
+                blocked & (first_blocked[target] < 0),
+                first_blocked.at[target].set(i), first_blocked,
             )  # fmt: skip
-        # no changer on its edge (one lane, or changing not allowed): SUMO
-        # registers it unchanged without asking the model
-        decides = active_i & ((net.change_path[p, k] >= 0).any())
-        direction = jnp.where(decides, turn.direction, 0)
-        mem = mem.replace(
-            state=mem.state.at[i].set(jnp.where(decides, turn.kept, mem.state[i]))
-        )
-        mem = after_change(mem, slots == jnp.where(direction != 0, i, -1))
-        to_lane = jnp.where(direction < 0, targets[0][0], targets[1][0])
-        to_path = jnp.where(direction < 0, targets[0][1], targets[1][1])
-        lane = lane.at[i].set(jnp.where(direction != 0, to_lane, own))
-        path = path.at[i].set(jnp.where(direction != 0, to_path, p))
-        carry = (
-            lane,
-            path,
-            done.at[i].set(True),
-            last_blocked,
-            first_blocked,
-            mem,
-            dir_out.at[i].set(direction),
-            state_out.at[i].set(jnp.where(direction != 0, turn.change_state, 0)),
-        )
-        sight = Sight(
-            jnp.stack([turn.state_right, turn.state_left]),
-            *(jnp.stack([seen[0][f], seen[1][f]]) for f in range(5)),
-        )
-        return carry, sight
+        lane = lane.at[i].set(out.to_lane)
+        return (lane, done.at[i].set(True), last_blocked, first_blocked, mem), out
 
-    none = -jnp.ones(n_lanes, jnp.int32)
-    zeros = jnp.zeros(m, jnp.int32)
-    init = (lane0, veh.path, jnp.zeros(m, bool), none, none, memory, zeros, zeros)
-    (lane, path, _, _, _, memory, direction, state), seen = jax.lax.scan(
-        decide, init, order
-    )
-    sight = jax.tree.map(lambda x: jnp.zeros_like(x).at[order].set(x), seen)
-    old_start = jnp.take_along_axis(net.lane_offset[veh.path], lane0[:, None], 1)[:, 0]
-    new_start = jnp.take_along_axis(net.lane_offset[path], lane[:, None], 1)[:, 0]
-    pos = jnp.where(direction != 0, veh.pos - old_start + new_start, veh.pos)
-    return RingChanges(path, pos, lane, direction, state, sight), memory
+    none = -jnp.ones(net.lane_length.shape[0], jnp.int32)
+    init = (ctx.lane, jnp.zeros(m, bool), none, none, memory)
+    (_, _, _, _, memory), outs = jax.lax.scan(take, init, ctx.order)
+    outcome = jax.tree.map(lambda x: jnp.zeros_like(x).at[ctx.order].set(x), outs)
+    return changes(ctx, outcome), memory
