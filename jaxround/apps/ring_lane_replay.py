@@ -3,11 +3,9 @@ by step, from SUMO's own traffic.
 
     python -m jaxround.apps.ring_lane_replay --config two_lane --duration 600
 
-SUMO 1.28 runs the scenario (libsumo, the settings of `jaxround sumo`, human
-drivers); after each step every vehicle's lane, position, speed and
-acceleration are read, and each vehicle is followed along the lane paths
-(`jaxround.lanes.paths`), which tells the lane changes SUMO made in the
-step. The JAX changer (`jaxround.lanes.ring_changer`) then decides the same
+SUMO 1.28 runs the scenario and its lane changes are recorded step by step
+(`jaxround.apps.ring_lane_record`). The JAX changer (`jaxround.lanes.ring_rounds`,
+the same changes as `jaxround.lanes.ring_changer`) then decides the same
 step from SUMO's state before those changes (the changed vehicles put back
 on their lanes, the vehicles inserted in the step left out), carrying its
 own LC2013 memory from step to step. Its changes are compared with SUMO's:
@@ -20,8 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import tempfile
-import xml.etree.ElementTree as ET
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,17 +29,17 @@ import numpy as np
 from tqdm import tqdm
 
 from jaxround.analysis.report import markdown_table
+from jaxround.apps.ring_lane_record import StepRecord, record_sumo
 from jaxround.lanes import actions as lca
-from jaxround.lanes import ring_changer
+from jaxround.lanes import ring_changer, ring_rounds
 from jaxround.lanes.best_lanes import LookAheadDriver
 from jaxround.lanes.follow import Driver
 from jaxround.lanes.memory import prepare_step
 from jaxround.lanes.params import LaneChangeParams
-from jaxround.lanes.paths import LEFT, RIGHT, LanePaths
 from jaxround.lanes.ring_tables import RingLanes, ring_lanes
 from jaxround.lanes.views import Memory
 from jaxround.scenario.config import DriverConfig, ScenarioConfig, load_config
-from jaxround.scenario.schedule import Schedule, make_schedule
+from jaxround.scenario.schedule import make_schedule
 from jaxround.sumo_files.netconvert import network_file
 
 #: SUMO's `MSVehicleControl::getMaxSpeedFactor` with its default vType loaded
@@ -51,140 +47,73 @@ from jaxround.sumo_files.netconvert import network_file
 MAX_SPEED_FACTOR = 2.0
 
 
-_CHANGE = jax.jit(ring_changer.change_lanes, static_argnums=4)
-
-
-@dataclass
-class StepRecord:
-    """One SUMO step, after its lane changes. Arrays over the vehicles on
-    the network (ids in ``ids``): the lane path and position along it before
-    the step's changes, the lane change made (-1 right, +1 left, 0 none),
-    speed, acceleration, speed factor, AV or not, inserted this step."""
-
-    time: float
-    ids: list[str]
-    path: np.ndarray
-    pos: np.ndarray
-    change: np.ndarray
-    speed: np.ndarray
-    accel: np.ndarray
-    speed_factor: np.ndarray
-    is_av: np.ndarray
-    new: np.ndarray
-
-
-@dataclass
-class PathTracker:
-    """Follows SUMO's vehicles along the lane paths (see the module doc)."""
-
-    paths: LanePaths
-    state: dict[str, int] = field(default_factory=dict)  # id -> path
-
-    def __post_init__(self) -> None:
-        self.index = {lid: k for k, lid in enumerate(self.paths.lane_ids)}
-        self.edge = [lid.rsplit("_", 1)[0] for lid in self.paths.lane_ids]
-
-    def step(self, vid: str, lane_id: str, route: int) -> tuple[int, int, int]:
-        """(path before the step's change, path after, change -1/0/+1)."""
-        lane = self.index[lane_id]
-        if vid not in self.state:
-            path = int(self.paths.depart_path[route, self.paths.lane_index[lane]])
-            self.state[vid] = path
-            return path, path, 0
-        path = self.state[vid]
-        on_path = next(
-            int(x) for x in self.paths.path_lanes[path]
-            if x >= 0 and self.edge[x] == self.edge[lane]
-        )  # fmt: skip
-        if on_path == lane:
-            return path, path, 0
-        side = LEFT if self.paths.lane_left[on_path] == lane else RIGHT
-        k = int(np.nonzero(self.paths.path_lanes[path] == on_path)[0][0])
-        new = int(self.paths.change_path[path, k, side])
-        if new < 0 or self.paths.path_lanes[new, k] != lane:
-            raise ValueError(f"{vid}: a change to {lane_id} the paths do not allow")
-        self.state[vid] = new
-        return path, new, 1 if side == LEFT else -1
-
-
-def record_sumo(
-    cfg: ScenarioConfig,
-    paths: LanePaths,
-    duration_s: float,
-    schedule: Schedule,
-) -> tuple[list[StepRecord], dict[tuple[float, str], str]]:
-    """Run the first ``duration_s`` seconds of ``schedule`` in SUMO.
-
-    Returns the steps and SUMO's reason for each change, by (time, id).
-    """
-    import libsumo
-
-    from sumo_export.runner import sumo_arguments
-    from sumo_export.scenario import AV_TYPE, write_scenario
-
-    steps: list[StepRecord] = []
-    dt = cfg.simulation.dt_s
-    with tempfile.TemporaryDirectory(prefix="jaxround-lanes-") as tmp:
-        out = Path(tmp)
-        files = write_scenario(cfg, schedule, out)
-        changes_xml = out / "changes.xml"
-        libsumo.start(
-            sumo_arguments(files.sumocfg, out / "trips.xml", out / "stats.xml")
-            + ["--lanechange-output", str(changes_xml)]
-        )
-        tracker = PathTracker(paths)
-        route_of = {}
-        try:
-            vehicle = libsumo.vehicle
-            for _ in tqdm(range(int(round(duration_s / dt))), desc="SUMO", leave=False):
-                libsumo.simulationStep()
-                ids = list(vehicle.getIDList())
-                new = np.array([vid not in tracker.state for vid in ids], bool)
-                rows = []
-                for vid, is_new in zip(ids, new, strict=True):
-                    if is_new:
-                        o, d = (int(x) for x in vehicle.getRouteID(vid).split("_")[1:])
-                        route_of[vid] = int(paths.route_index[o, d])
-                    before, _, change = tracker.step(
-                        vid, vehicle.getLaneID(vid), route_of[vid]
-                    )
-                    lane = tracker.index[vehicle.getLaneID(vid)]
-                    own = (
-                        lane
-                        if change == 0
-                        else (paths.lane_right if change > 0 else paths.lane_left)[lane]
-                    )
-                    rows.append((
-                        before, paths.lane_offset[before, own]
-                        + vehicle.getLanePosition(vid), change,
-                        vehicle.getSpeed(vid), vehicle.getAcceleration(vid),
-                        vehicle.getSpeedFactor(vid),
-                        vehicle.getTypeID(vid) == AV_TYPE,
-                    ))  # fmt: skip
-                for vid in libsumo.simulation.getArrivedIDList():
-                    tracker.state.pop(vid, None)
-                columns = list(zip(*rows, strict=True)) if rows else [()] * 7
-                steps.append(StepRecord(
-                    time=libsumo.simulation.getTime(), ids=ids,
-                    path=np.array(columns[0], np.int32), pos=np.array(columns[1]),
-                    change=np.array(columns[2], np.int32),
-                    speed=np.array(columns[3]), accel=np.array(columns[4]),
-                    speed_factor=np.array(columns[5]),
-                    is_av=np.array(columns[6], bool), new=new,
-                ))  # fmt: skip
-        finally:
-            libsumo.close()
-        # the output's time is the step's start, the records' its end
-        reasons = {
-            (float(c.get("time")) + dt, c.get("id")): c.get("reason", "")
-            for c in ET.parse(changes_xml).getroot().iter("change")
-        }
-    return steps, reasons
+_CHANGE = jax.jit(ring_rounds.change_lanes, static_argnums=4)
 
 
 def _driver(d: DriverConfig) -> Driver:
     return Driver(d.accel, d.decel, d.emergency_decel, d.tau, d.min_gap, d.length,
                   d.delta, d.max_speed)  # fmt: skip
+
+
+@dataclass
+class SlotBook:
+    """SUMO's vehicles in slots of the JAX arrays, step after step: a
+    vehicle keeps its slot while it is on the network."""
+
+    cfg: ScenarioConfig
+    n_slots: int
+    slot_of: dict[str, int] = field(default_factory=dict)
+
+    @classmethod
+    def for_steps(cls, cfg: ScenarioConfig, steps: list[StepRecord]) -> SlotBook:
+        """Slots in sixteens, so that runs of similar traffic share one
+        compilation (a step costs about M^2)."""
+        return cls(cfg, 16 * -(-(max(len(s.ids) for s in steps) + 8) // 16))
+
+    def vehicles(
+        self, rec: StepRecord, memory: Memory
+    ) -> tuple[ring_changer.RingVehicles, Memory, np.ndarray]:
+        """The step's vehicles (new ones inactive), the memory with new
+        vehicles' rows cleared and `prepare_step` done, and each recorded
+        vehicle's slot (len(ids),)."""
+        for vid in list(self.slot_of):
+            if vid not in rec.ids:
+                del self.slot_of[vid]
+        free = sorted(set(range(self.n_slots)) - set(self.slot_of.values()))
+        fresh = np.zeros(self.n_slots, bool)
+        for vid in rec.ids:
+            if vid not in self.slot_of:
+                self.slot_of[vid] = free.pop(0)
+                fresh[self.slot_of[vid]] = True
+        slots = np.array([self.slot_of[v] for v in rec.ids], np.int32)
+        memory = jax.tree.map(
+            lambda x, z: jnp.where(fresh.reshape(-1, *([1] * (x.ndim - 1))), z, x),
+            memory, Memory.zeros(self.n_slots),
+        )  # fmt: skip
+        active = np.zeros(self.n_slots, bool)
+        active[slots] = ~rec.new
+
+        def spread(values, fill=0.0):
+            out = np.full(self.n_slots, fill, np.asarray(values).dtype)
+            out[slots] = values
+            return out
+
+        is_av = spread(rec.is_av, False)
+        hv, av = _driver(self.cfg.drivers.hv), _driver(self.cfg.drivers.av)
+        driver = jax.tree.map(lambda h, a: jnp.where(is_av, a, h), hv, av)
+        veh = ring_changer.RingVehicles(
+            path=jnp.asarray(spread(rec.path, 0)), pos=jnp.asarray(spread(rec.pos)),
+            speed=jnp.asarray(spread(rec.speed)), accel=jnp.asarray(spread(rec.accel)),
+            active=jnp.asarray(active), driver=driver,
+            speed_factor=jnp.asarray(spread(rec.speed_factor, 1.0)),
+        )  # fmt: skip
+        return veh, prepare_step(memory), slots
+
+
+def arrays(cfg: ScenarioConfig, tables: RingLanes) -> ring_changer.RingArrays:
+    """The changer's network arrays for a config's vTypes."""
+    min_decel = min(cfg.drivers.hv.decel, cfg.drivers.av.decel, 4.5)
+    return ring_changer.RingArrays.from_tables(tables, MAX_SPEED_FACTOR, min_decel)
 
 
 def replay(
@@ -194,53 +123,22 @@ def replay(
     reasons: dict[tuple[float, str], str],
     lc: LaneChangeParams | None = None,
 ) -> dict[str, Any]:
-    """The JAX changer on SUMO's recorded steps; the tally of the comparison."""
+    """The JAX changer on SUMO's recorded steps; the tally of the comparison
+    and how many rounds `ring_rounds` took per step."""
     lc = lc or LaneChangeParams()
     dt = cfg.simulation.dt_s
-    min_decel = min(cfg.drivers.hv.decel, cfg.drivers.av.decel, 4.5)
-    net = ring_changer.RingArrays.from_tables(tables, MAX_SPEED_FACTOR, min_decel)
-    # slots in sixteens, so that runs of similar traffic share one compilation
-    # (a step costs about M^2: the scan takes M turns of (M,) work)
-    n_slots = 16 * -(-(max(len(s.ids) for s in steps) + 8) // 16)
-    hv, av = _driver(cfg.drivers.hv), _driver(cfg.drivers.av)
-    memory = Memory.zeros(n_slots)
-    slot_of: dict[str, int] = {}
+    net = arrays(cfg, tables)
+    book = SlotBook.for_steps(cfg, steps)
+    slot_of = book.slot_of
+    memory = Memory.zeros(book.n_slots)
     tally: Counter = Counter()
+    rounds: Counter = Counter()
     mismatches: list[dict[str, Any]] = []
     jax_only: set[tuple[str, int]] = set()
     for rec in tqdm(steps, desc="JAX", leave=False):
-        for vid in list(slot_of):
-            if vid not in rec.ids:
-                del slot_of[vid]
-        free = sorted(set(range(n_slots)) - set(slot_of.values()))
-        fresh = np.zeros(n_slots, bool)
-        for vid in rec.ids:
-            if vid not in slot_of:
-                slot_of[vid] = free.pop(0)
-                fresh[slot_of[vid]] = True
-        slots = np.array([slot_of[v] for v in rec.ids], np.int32)
-        memory = jax.tree.map(
-            lambda x, z: jnp.where(fresh.reshape(-1, *([1] * (x.ndim - 1))), z, x),
-            memory, Memory.zeros(n_slots),
-        )  # fmt: skip
-        active = np.zeros(n_slots, bool)
-        active[slots] = ~rec.new
-
-        def spread(values, fill=0.0, slots=slots):
-            out = np.full(n_slots, fill, np.asarray(values).dtype)
-            out[slots] = values
-            return out
-
-        is_av = spread(rec.is_av, False)
-        driver = jax.tree.map(lambda h, a: jnp.where(is_av, a, h), hv, av)
-        veh = ring_changer.RingVehicles(
-            path=jnp.asarray(spread(rec.path, 0)), pos=jnp.asarray(spread(rec.pos)),
-            speed=jnp.asarray(spread(rec.speed)), accel=jnp.asarray(spread(rec.accel)),
-            active=jnp.asarray(active), driver=driver,
-            speed_factor=jnp.asarray(spread(rec.speed_factor, 1.0)),
-        )  # fmt: skip
-        memory = prepare_step(memory)
-        result, memory = _CHANGE(net, veh, memory, lc, dt)
+        veh, memory, slots = book.vehicles(rec, memory)
+        result, memory, n_rounds = _CHANGE(net, veh, memory, lc, dt)
+        rounds[int(n_rounds)] += 1
         jax_dir = np.asarray(result.direction)[slots]
         sight = jax.tree.map(np.asarray, result.sight)
         id_of = {slot: vid for vid, slot in slot_of.items()}
@@ -273,7 +171,11 @@ def replay(
                     **_seen(sight, slot_of[vid], id_of),
                 })  # fmt: skip
     tally["jax only, vehicles"] = len(jax_only)
-    return {"tally": dict(tally), "mismatches": mismatches}
+    return {
+        "tally": dict(tally),
+        "rounds": {str(n): rounds[n] for n in sorted(rounds)},
+        "mismatches": mismatches,
+    }
 
 
 def _seen(sight: Any, slot: int, id_of: dict[int, str]) -> dict[str, Any]:
@@ -333,8 +235,10 @@ def summary(result: dict[str, Any]) -> str:
         for m in first.values()
     )  # fmt: skip
     alone = [[edge, side, why, str(n)] for (edge, side, why), n in where.most_common()]
+    rounds = ", ".join(f"{n}: {c}" for n, c in result.get("rounds", {}).items())
     return (
         markdown_table(("", "count"), rows)
+        + f"\nRounds to settle the changes (rounds: steps): {rounds}\n"
         + "\nWhere JAX changes alone (first step per vehicle):\n\n"
         + markdown_table(("edge", "to the", "JAX's reason", "vehicles"), alone)
     )

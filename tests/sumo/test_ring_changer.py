@@ -17,7 +17,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from jaxround.apps.ring_lane_replay import record_sumo, replay
+from jaxround.apps.ring_lane_record import record_sumo
+from jaxround.apps.ring_lane_replay import replay
 from jaxround.lanes.best_lanes import LookAheadDriver
 from jaxround.lanes.ring_tables import ring_lanes
 from jaxround.scenario.config import ScenarioConfig

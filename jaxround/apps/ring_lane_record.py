@@ -1,0 +1,151 @@
+"""SUMO's lane changes on a roundabout, recorded step by step for
+`jaxround.apps.ring_lane_replay`.
+
+SUMO 1.28 runs the scenario (libsumo, the settings of `jaxround sumo`, human
+drivers); after each step every vehicle's lane, position, speed and
+acceleration are read, and each vehicle is followed along the lane paths
+(`jaxround.lanes.paths`), which tells the lane changes SUMO made in the
+step; SUMO's reasons come from its ``--lanechange-output``.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from jaxround.lanes.paths import LEFT, RIGHT, LanePaths
+from jaxround.scenario.config import ScenarioConfig
+from jaxround.scenario.schedule import Schedule
+
+
+@dataclass
+class StepRecord:
+    """One SUMO step, after its lane changes. Arrays over the vehicles on
+    the network (ids in ``ids``): the lane path and position along it before
+    the step's changes, the lane change made (-1 right, +1 left, 0 none),
+    speed, acceleration, speed factor, AV or not, inserted this step."""
+
+    time: float
+    ids: list[str]
+    path: np.ndarray
+    pos: np.ndarray
+    change: np.ndarray
+    speed: np.ndarray
+    accel: np.ndarray
+    speed_factor: np.ndarray
+    is_av: np.ndarray
+    new: np.ndarray
+
+
+@dataclass
+class PathTracker:
+    """Follows SUMO's vehicles along the lane paths (see the module doc)."""
+
+    paths: LanePaths
+    state: dict[str, int] = field(default_factory=dict)  # id -> path
+
+    def __post_init__(self) -> None:
+        self.index = {lid: k for k, lid in enumerate(self.paths.lane_ids)}
+        self.edge = [lid.rsplit("_", 1)[0] for lid in self.paths.lane_ids]
+
+    def step(self, vid: str, lane_id: str, route: int) -> tuple[int, int, int]:
+        """(path before the step's change, path after, change -1/0/+1)."""
+        lane = self.index[lane_id]
+        if vid not in self.state:
+            path = int(self.paths.depart_path[route, self.paths.lane_index[lane]])
+            self.state[vid] = path
+            return path, path, 0
+        path = self.state[vid]
+        on_path = next(
+            int(x) for x in self.paths.path_lanes[path]
+            if x >= 0 and self.edge[x] == self.edge[lane]
+        )  # fmt: skip
+        if on_path == lane:
+            return path, path, 0
+        side = LEFT if self.paths.lane_left[on_path] == lane else RIGHT
+        k = int(np.nonzero(self.paths.path_lanes[path] == on_path)[0][0])
+        new = int(self.paths.change_path[path, k, side])
+        if new < 0 or self.paths.path_lanes[new, k] != lane:
+            raise ValueError(f"{vid}: a change to {lane_id} the paths do not allow")
+        self.state[vid] = new
+        return path, new, 1 if side == LEFT else -1
+
+
+def record_sumo(
+    cfg: ScenarioConfig,
+    paths: LanePaths,
+    duration_s: float,
+    schedule: Schedule,
+) -> tuple[list[StepRecord], dict[tuple[float, str], str]]:
+    """Run the first ``duration_s`` seconds of ``schedule`` in SUMO.
+
+    Returns the steps and SUMO's reason for each change, by (time, id).
+    """
+    import libsumo
+
+    from sumo_export.runner import sumo_arguments
+    from sumo_export.scenario import AV_TYPE, write_scenario
+
+    steps: list[StepRecord] = []
+    dt = cfg.simulation.dt_s
+    with tempfile.TemporaryDirectory(prefix="jaxround-lanes-") as tmp:
+        out = Path(tmp)
+        files = write_scenario(cfg, schedule, out)
+        changes_xml = out / "changes.xml"
+        libsumo.start(
+            sumo_arguments(files.sumocfg, out / "trips.xml", out / "stats.xml")
+            + ["--lanechange-output", str(changes_xml)]
+        )
+        tracker = PathTracker(paths)
+        route_of = {}
+        try:
+            vehicle = libsumo.vehicle
+            for _ in tqdm(range(int(round(duration_s / dt))), desc="SUMO", leave=False):
+                libsumo.simulationStep()
+                ids = list(vehicle.getIDList())
+                new = np.array([vid not in tracker.state for vid in ids], bool)
+                rows = []
+                for vid, is_new in zip(ids, new, strict=True):
+                    if is_new:
+                        o, d = (int(x) for x in vehicle.getRouteID(vid).split("_")[1:])
+                        route_of[vid] = int(paths.route_index[o, d])
+                    before, _, change = tracker.step(
+                        vid, vehicle.getLaneID(vid), route_of[vid]
+                    )
+                    lane = tracker.index[vehicle.getLaneID(vid)]
+                    own = (
+                        lane
+                        if change == 0
+                        else (paths.lane_right if change > 0 else paths.lane_left)[lane]
+                    )
+                    rows.append((
+                        before, paths.lane_offset[before, own]
+                        + vehicle.getLanePosition(vid), change,
+                        vehicle.getSpeed(vid), vehicle.getAcceleration(vid),
+                        vehicle.getSpeedFactor(vid),
+                        vehicle.getTypeID(vid) == AV_TYPE,
+                    ))  # fmt: skip
+                for vid in libsumo.simulation.getArrivedIDList():
+                    tracker.state.pop(vid, None)
+                columns = list(zip(*rows, strict=True)) if rows else [()] * 7
+                steps.append(StepRecord(
+                    time=libsumo.simulation.getTime(), ids=ids,
+                    path=np.array(columns[0], np.int32), pos=np.array(columns[1]),
+                    change=np.array(columns[2], np.int32),
+                    speed=np.array(columns[3]), accel=np.array(columns[4]),
+                    speed_factor=np.array(columns[5]),
+                    is_av=np.array(columns[6], bool), new=new,
+                ))  # fmt: skip
+        finally:
+            libsumo.close()
+        # the output's time is the step's start, the records' its end
+        reasons = {
+            (float(c.get("time")) + dt, c.get("id")): c.get("reason", "")
+            for c in ET.parse(changes_xml).getroot().iter("change")
+        }
+    return steps, reasons
