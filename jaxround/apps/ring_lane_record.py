@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import tempfile
 import xml.etree.ElementTree as ET
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
@@ -28,7 +30,8 @@ class StepRecord:
     """One SUMO step, after its lane changes. Arrays over the vehicles on
     the network (ids in ``ids``): the lane path and position along it before
     the step's changes, the lane change made (-1 right, +1 left, 0 none),
-    speed, acceleration, speed factor, AV or not, inserted this step."""
+    speed, acceleration, speed factor, AV or not, inserted this step, and
+    the lane index a TraCI request asked for in the step (-1: none)."""
 
     time: float
     ids: list[str]
@@ -40,6 +43,7 @@ class StepRecord:
     speed_factor: np.ndarray
     is_av: np.ndarray
     new: np.ndarray
+    request: np.ndarray
 
 
 @dataclass
@@ -76,13 +80,24 @@ class PathTracker:
         return path, new, 1 if side == LEFT else -1
 
 
+#: What a scripted lane policy gives before a step: lane indices by vehicle.
+LanePolicy = Callable[[Any, list[str]], dict[str, int]]
+
+
 def record_sumo(
     cfg: ScenarioConfig,
     paths: LanePaths,
     duration_s: float,
     schedule: Schedule,
+    lane_policy: LanePolicy | None = None,
 ) -> tuple[list[StepRecord], dict[tuple[float, str], str]]:
     """Run the first ``duration_s`` seconds of ``schedule`` in SUMO.
+
+    Args:
+        lane_policy: called before every step with libsumo's ``vehicle``
+            module and the vehicles on the network; each lane index it
+            returns is sent as ``changeLane(id, index, step length)``
+            (lane-change mode left at SUMO's default, 1621).
 
     Returns the steps and SUMO's reason for each change, by (time, id).
     """
@@ -105,7 +120,11 @@ def record_sumo(
         route_of = {}
         try:
             vehicle = libsumo.vehicle
+            ids: list[str] = []
             for _ in tqdm(range(int(round(duration_s / dt))), desc="SUMO", leave=False):
+                asked = lane_policy(vehicle, ids) if lane_policy else {}
+                for vid, index in asked.items():
+                    vehicle.changeLane(vid, index, dt)
                 libsumo.simulationStep()
                 ids = list(vehicle.getIDList())
                 new = np.array([vid not in tracker.state for vid in ids], bool)
@@ -140,6 +159,7 @@ def record_sumo(
                     speed=np.array(columns[3]), accel=np.array(columns[4]),
                     speed_factor=np.array(columns[5]),
                     is_av=np.array(columns[6], bool), new=new,
+                    request=np.array([asked.get(v, -1) for v in ids], np.int32),
                 ))  # fmt: skip
         finally:
             libsumo.close()

@@ -106,6 +106,7 @@ class SlotBook:
             speed=jnp.asarray(spread(rec.speed)), accel=jnp.asarray(spread(rec.accel)),
             active=jnp.asarray(active), driver=driver,
             speed_factor=jnp.asarray(spread(rec.speed_factor, 1.0)),
+            lane_request=jnp.asarray(spread(rec.request, -1)),
         )  # fmt: skip
         return veh, prepare_step(memory), slots
 

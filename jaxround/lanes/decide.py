@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxround.lanes import actions as lca
+from jaxround.lanes import traci
 from jaxround.lanes.lc2013 import Wish, check_change, wants_change
 from jaxround.lanes.params import LaneChangeParams
 from jaxround.lanes.views import Ego, LaneQ, Memory, Neighbour, push_advice
@@ -103,6 +104,8 @@ def turn_of(
     left: Side,
     lc: LaneChangeParams,
     dt: float,
+    request: jax.Array | int = traci.NONE,
+    request_s: float = 0.0,
 ) -> tuple[Turn, Kept, Told]:
     """Vehicle ``i``'s turn: right first, then left (`MSLaneChanger::change`),
     written nowhere.
@@ -115,6 +118,8 @@ def turn_of(
         curr, best: the LaneQ of its lane and of its best lane.
         leader: the leader on its own lane.
         right, left: what it sees on each side.
+        request, request_s: its TraCI lane request (`jaxround.lanes.traci`)
+            and the seconds the request has left.
 
     Returns:
         (turn, kept, told): its decision, what it keeps (its new
@@ -130,7 +135,8 @@ def turn_of(
             direction, side.ego, state, sgp, krp, look, advices,
             curr=curr, neigh=side.neigh, best=best, leader=leader,
             neigh_lead=side.lead, neigh_follow=side.follow, blocked=blocked,
-            lc=lc, dt=dt, roundabout_bonus=side.bonus,
+            lc=lc, dt=dt, roundabout_bonus=side.bonus, request=request,
+            request_s=request_s,
         )  # fmt: skip
         wish = jax.tree.map(
             lambda new, old, may=side.may: jnp.where(may, new, old),
@@ -140,7 +146,10 @@ def turn_of(
         sgp = wish.speed_gain_probability
         krp = wish.keep_right_probability
         look = wish.look_ahead_speed
-        states[direction] = jnp.where(side.may, wish.state | blocked, 0)
+        # `checkChange`: the request once more, on the state with the blocked bits
+        states[direction] = jnp.where(
+            side.may, traci.influence(wish.state | blocked, request), 0
+        )
         for advice in wish.own_advices:
             advices = push_advice(advices, advice)
         told.append((side.lead_slot, wish.leader_speed, wish.leader_bits))

@@ -1,7 +1,8 @@
 """One vehicle's wish to change lanes: SUMO 1.28's `MSLCM_LC2013`, in JAX.
 
 `wants_change` is `MSLCM_LC2013::_wantsChange` for one direction (Euler
-update, one lane per vehicle, no stops, no TraCI), branch by branch in
+update, one lane per vehicle, no stops; TraCI lane requests under the
+default lane-change mode, `jaxround.lanes.traci`), branch by branch in
 SUMO's order: the look-ahead distance, the urgent strategic change (and its
 negotiation, `jaxround.lanes.inform`), the reasons to stay, the roundabout
 bonus, cooperation, speed gain to the right with keep-right, speed gain to
@@ -21,7 +22,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxround.lanes import actions as lca
-from jaxround.lanes import follow
+from jaxround.lanes import follow, traci
 from jaxround.lanes.inform import inform_follower, inform_leader
 from jaxround.lanes.params import LaneChangeParams
 from jaxround.lanes.views import Ego, LaneQ, Neighbour
@@ -148,6 +149,8 @@ def wants_change(
     lc: LaneChangeParams,
     dt: float,
     roundabout_bonus: jax.Array | float = 0.0,
+    request: jax.Array | int = traci.NONE,
+    request_s: float = 0.0,
 ) -> Wish:
     """`MSLCM_LC2013::_wantsChange` for ``direction`` (-1 right, +1 left).
 
@@ -162,6 +165,8 @@ def wants_change(
         blocked: `check_change`'s bits for this direction.
         roundabout_bonus: `MSLCHelper::getRoundaboutDistBonus` (m; 0 off a
             roundabout).
+        request, request_s: a TraCI lane request (`jaxround.lanes.traci`,
+            lane-change mode 1621) and the seconds it has left.
     """
     right = direction < 0
     lca_dir = lca.RIGHT if right else lca.LEFT
@@ -209,11 +214,31 @@ def wants_change(
         )
     )  # fmt: skip
 
-    # 5. the urgent change's negotiation with the target lane
+    # 4b. a TraCI request weighs in: it may cancel the stay or the urgency,
+    # and a request the other way is not this look's business
+    strategic_state = jnp.select(
+        [urgent, stay],
+        [ret | lca_dir | lca.STRATEGIC | lca.URGENT, ret | lca.STAY | lca.STRATEGIC],
+        ret,
+    ).astype(jnp.int32)
+    counter = lca.LEFT if right else lca.RIGHT
+    asked = traci.influence(strategic_state, request)
+    asked = jnp.where(
+        (asked & counter) != 0, asked & ~(lca.TRACI | counter | lca.URGENT), asked
+    )
+    stays = (asked & lca.STAY) != 0
+    urgent_now = ~stays & ((asked & lca.URGENT) != 0)
+
+    # 5. the urgent change's negotiation with the target lane (the request's
+    # remaining time where it asked)
     left_space = current_dist - ego.pos
     lanes_to_go = jnp.maximum(abs_offset, 1.0)
     per_lane = left_space / jnp.maximum(look_ahead, NUMERICAL_EPS) / lanes_to_go
-    remaining_s = jnp.maximum(dt, per_lane / URGENCY)
+    remaining_s = jnp.where(
+        urgent_now & ((asked & lca.TRACI) != 0),
+        request_s,
+        jnp.maximum(dt, per_lane / URGENCY),
+    )
     planned, lead_advice, leader_speed, leader_bits = inform_leader(
         ego, neigh_lead, blocked=blocked, my_lca=my_lca, remaining_s=remaining_s,
         left_space=left_space, advices=advices, dt=dt,
@@ -322,25 +347,32 @@ def wants_change(
         & ((sgp < 0) if right else (sgp > 0))
     )  # fmt: skip
 
-    # the first branch that returns, in SUMO's order
+    # after the early returns (the state before the request), the first wish
+    # that holds and the request does not cancel (`cancelRequest`)
+    gain_urgency = jnp.where(speed_gain_urgent, lca.URGENT, 0)
+    wishes = {
+        "roundabout": (in_roundabout, asked | roundabout_req),
+        "cooperates": (cooperates, asked | lca_dir | lca.COOPERATIVE | lca.URGENT),
+        "keep_right": (keep_right, asked | lca_dir | lca.KEEPRIGHT),
+        "speed_gain": (speed_gain, asked | lca_dir | lca.SPEEDGAIN | gain_urgency),
+        "strategic": (strategic, asked | lca_dir | lca.STRATEGIC),
+    }
+    taken = {
+        name: holds & ~traci.cancels(wish, request)
+        for name, (holds, wish) in wishes.items()
+    }
+    early = stays | urgent_now
     state = jnp.select(
-        [urgent, stay, in_roundabout, cooperates, keep_right, speed_gain, strategic],
-        [
-            ret | lca_dir | lca.STRATEGIC | lca.URGENT,
-            ret | lca.STAY | lca.STRATEGIC,
-            ret | roundabout_req,
-            ret | lca_dir | lca.COOPERATIVE | lca.URGENT,
-            ret | lca_dir | lca.KEEPRIGHT,
-            ret | lca_dir | lca.SPEEDGAIN | jnp.where(speed_gain_urgent, lca.URGENT, 0),
-            ret | lca_dir | lca.STRATEGIC,
-        ],
-        ret,
+        [early, *taken.values()],
+        [strategic_state, *(wish for _, wish in wishes.values())],
+        asked,
     ).astype(jnp.int32)
     # memory updates happen only on the paths that reach them
-    reaches_speeds = ~urgent & ~stay
-    reaches_gain = reaches_speeds & ~in_roundabout & ~cooperates
+    reaches_gain = ~early & ~taken["roundabout"] & ~taken["cooperates"]
     # an urgent change (strategic, or for speed in 1.28) negotiates
-    negotiates = urgent | (reaches_gain & ~keep_right & speed_gain & speed_gain_urgent)
+    negotiates = urgent_now | (
+        reaches_gain & ~taken["keep_right"] & taken["speed_gain"] & speed_gain_urgent
+    )
     nan = jnp.asarray(jnp.nan, jnp.result_type(float))
     return Wish(
         state=state,

@@ -39,6 +39,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxround.lanes import ring_neighbours as neighbours
+from jaxround.lanes import traci
 from jaxround.lanes.changer import FAR, _pick
 from jaxround.lanes.decide import Kept, Side, Told, deliver, keep, turn_of
 from jaxround.lanes.follow import Driver
@@ -56,6 +57,8 @@ class RingVehicles(NamedTuple):
         path: int lane path; pos: front position along it (m).
         speed, accel: after the move (m/s, m/s^2).
         active: bool; driver: `Driver` of (M,) arrays; speed_factor.
+        lane_request: int lane index a TraCI request asks for this step
+            (`jaxround.lanes.traci`, lasting the step; -1 or None: none).
     """
 
     path: jax.Array
@@ -65,6 +68,7 @@ class RingVehicles(NamedTuple):
     active: jax.Array
     driver: Driver
     speed_factor: jax.Array
+    lane_request: jax.Array | None = None
 
 
 class Sight(NamedTuple):
@@ -260,9 +264,14 @@ def turn(ctx: Context, i: jax.Array, view: View, memory: Memory) -> Outcome:
         paths.append(q)
         seen.append((jnp.where(lead[1], lead[0], -1), lead[2],
                      jnp.where(back[1], back[0], -1), back[2], bonus))  # fmt: skip
+    request = traci.NONE
+    if veh.lane_request is not None:
+        request = traci.change_request(
+            veh.lane_request[i], net.lane_index[own], jnp.sum(edge >= 0)
+        )
     decision, kept, told = turn_of(
         i, memory, state_me, advices_me, curr=curr, best=best, leader=leader,
-        right=sides[0], left=sides[1], lc=lc_i, dt=dt,
+        right=sides[0], left=sides[1], lc=lc_i, dt=dt, request=request, request_s=dt,
     )  # fmt: skip
     # no changer on its edge (one lane, or changing not allowed): SUMO
     # registers it unchanged without asking the model
