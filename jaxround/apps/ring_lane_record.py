@@ -82,6 +82,51 @@ class PathTracker:
 
 #: What a scripted lane policy gives before a step: lane indices by vehicle.
 LanePolicy = Callable[[Any, list[str]], dict[str, int]]
+#: How far the gap policy looks for leaders (m).
+GAP_SIGHT_M = 100.0
+
+
+def scripted_policy(name: str) -> LanePolicy:
+    """The AVs' scripted lane requests: ``inner`` (lane 1) or ``outer``
+    (lane 0) always, or ``gap:X``: on a two-lane edge, the other lane when
+    its leader (within `GAP_SIGHT_M`) is more than X m further than this
+    lane's. Human drivers are never asked."""
+    import libsumo
+
+    from sumo_export.scenario import AV_TYPE
+
+    kind, _, margin = name.partition(":")
+    if kind in ("inner", "outer") and not margin:
+        lane = 1 if kind == "inner" else 0
+
+        def always(vehicle: Any, ids: list[str]) -> dict[str, int]:
+            return {v: lane for v in ids if vehicle.getTypeID(v) == AV_TYPE}
+
+        return always
+    try:
+        margin_m = float(margin) if kind == "gap" else float("nan")
+    except ValueError:
+        margin_m = float("nan")
+    if not margin_m >= 0:
+        raise ValueError(f"lane policy {name!r}: expected inner, outer or gap:X (m)")
+
+    def larger_gap(vehicle: Any, ids: list[str]) -> dict[str, int]:
+        asked = {}
+        for vid in ids:
+            if vehicle.getTypeID(vid) != AV_TYPE:
+                continue
+            if libsumo.edge.getLaneNumber(vehicle.getRoadID(vid)) != 2:
+                continue
+            lane = vehicle.getLaneIndex(vid)
+            leader = vehicle.getLeader(vid, GAP_SIGHT_M)
+            own = leader[1] if leader and leader[0] else GAP_SIGHT_M
+            side = vehicle.getLeftLeaders if lane == 0 else vehicle.getRightLeaders
+            other = min((gap for _, gap in side(vid)), default=GAP_SIGHT_M)
+            if other > own + margin_m:
+                asked[vid] = 1 - lane
+        return asked
+
+    return larger_gap
 
 
 def record_sumo(

@@ -2,6 +2,7 @@
 by step, from SUMO's own traffic.
 
     python -m jaxround.apps.ring_lane_replay --config two_lane --duration 600
+    python -m jaxround.apps.ring_lane_replay --penetration 0.5 --policy gap:10
 
 SUMO 1.28 runs the scenario and its lane changes are recorded step by step
 (`jaxround.apps.ring_lane_record`). The JAX changer (`jaxround.lanes.ring_rounds`,
@@ -11,7 +12,9 @@ on their lanes, the vehicles inserted in the step left out), carrying its
 own LC2013 memory from step to step. Its changes are compared with SUMO's:
 the same vehicle, step and direction. Speeds and positions always come from
 SUMO (the replay is open loop), so the figures measure the lane-change
-decisions alone.
+decisions alone. With ``--policy`` SUMO's AVs get TraCI lane requests
+before every step (`ring_lane_record.scripted_policy`), and the JAX
+changer the same ones (docs/lc2013-map.md section 13).
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ import numpy as np
 from tqdm import tqdm
 
 from jaxround.analysis.report import markdown_table
-from jaxround.apps.ring_lane_record import StepRecord, record_sumo
+from jaxround.apps.ring_lane_record import StepRecord, record_sumo, scripted_policy
 from jaxround.lanes import actions as lca
 from jaxround.lanes import ring_changer, ring_rounds
 from jaxround.lanes.best_lanes import LookAheadDriver
@@ -251,6 +254,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--duration", type=float, default=600.0, help="seconds")
     parser.add_argument("--seed", type=int, default=0, help="schedule seed")
     parser.add_argument("--json", type=Path, help="write the comparison here (new)")
+    parser.add_argument(
+        "--penetration", type=float, help="share of AVs (default: the config's)"
+    )
+    parser.add_argument("--policy", help="the AVs' scripted lane requests: inner, "
+                        "outer or gap:X (m)")  # fmt: skip
     args = parser.parse_args(argv)
     if args.duration <= 0:
         parser.error(f"--duration {args.duration}: expected seconds > 0")
@@ -258,14 +266,22 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--seed {args.seed}: expected >= 0")
     if args.json is not None and args.json.exists():
         parser.error(f"--json {args.json}: exists; give a new file")
+    if args.penetration is not None and not 0.0 <= args.penetration <= 1.0:
+        parser.error(f"--penetration {args.penetration}: expected a share in [0, 1]")
+    try:
+        policy = scripted_policy(args.policy) if args.policy else None
+    except ValueError as err:
+        parser.error(f"--policy: {err}")
     cfg = load_config(args.config)
     net = network_file(cfg)
     driver = LookAheadDriver.from_config(cfg.drivers.hv, cfg.simulation.dt_s)
     tables = ring_lanes(net, driver)
     if (tables.paths.change_path < 0).all():
         parser.error(f"--config {args.config}: no edge has two lanes to change between")
-    schedule = make_schedule(cfg, args.seed)
-    steps, reasons = record_sumo(cfg, tables.paths, args.duration, schedule)
+    schedule = make_schedule(cfg, args.seed, penetration=args.penetration)
+    steps, reasons = record_sumo(
+        cfg, tables.paths, args.duration, schedule, lane_policy=policy
+    )
     result = replay(cfg, tables, steps, reasons)
     print(summary(result))
     if args.json:
