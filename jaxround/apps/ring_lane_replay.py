@@ -114,6 +114,12 @@ class SlotBook:
         return veh, prepare_step(memory), slots
 
 
+def tables_for(cfg: ScenarioConfig) -> RingLanes:
+    """The changer's tables of a config's network, for its human drivers."""
+    driver = LookAheadDriver.from_config(cfg.drivers.hv, cfg.simulation.dt_s)
+    return ring_lanes(network_file(cfg), driver)
+
+
 def arrays(cfg: ScenarioConfig, tables: RingLanes) -> ring_changer.RingArrays:
     """The changer's network arrays for a config's vTypes."""
     min_decel = min(cfg.drivers.hv.decel, cfg.drivers.av.decel, 4.5)
@@ -273,9 +279,7 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as err:
         parser.error(f"--policy: {err}")
     cfg = load_config(args.config)
-    net = network_file(cfg)
-    driver = LookAheadDriver.from_config(cfg.drivers.hv, cfg.simulation.dt_s)
-    tables = ring_lanes(net, driver)
+    tables = tables_for(cfg)
     if (tables.paths.change_path < 0).all():
         parser.error(f"--config {args.config}: no edge has two lanes to change between")
     schedule = make_schedule(cfg, args.seed, penetration=args.penetration)

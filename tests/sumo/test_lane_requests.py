@@ -19,10 +19,9 @@ from __future__ import annotations
 import pytest
 
 from jaxround.apps.ring_lane_record import record_sumo, scripted_policy
-from jaxround.apps.ring_lane_replay import replay
+from jaxround.apps.ring_lane_replay import replay, tables_for
 from jaxround.scenario.config import load_config
 from jaxround.scenario.schedule import make_schedule
-from tests.sumo.test_ring_changer import tables_for
 
 pytestmark = pytest.mark.sumo
 

@@ -18,23 +18,15 @@ import numpy as np
 import pytest
 
 from jaxround.apps.ring_lane_record import record_sumo
-from jaxround.apps.ring_lane_replay import replay
-from jaxround.lanes.best_lanes import LookAheadDriver
-from jaxround.lanes.ring_tables import ring_lanes
+from jaxround.apps.ring_lane_replay import replay, tables_for
 from jaxround.scenario.config import ScenarioConfig
 from jaxround.scenario.schedule import Schedule
-from jaxround.sumo_files.netconvert import network_file
 from tests.sumo.two_lane_networks import five_legs
 
 pytestmark = pytest.mark.sumo
 
 #: Seconds between two vehicles driving alone (one crosses in 20 to 27 s).
 ALONE_S = 30.0
-
-
-def tables_for(cfg: ScenarioConfig):
-    driver = LookAheadDriver.from_config(cfg.drivers.hv, cfg.simulation.dt_s)
-    return ring_lanes(network_file(cfg), driver)
 
 
 def every_route_alone(cfg: ScenarioConfig) -> Schedule:

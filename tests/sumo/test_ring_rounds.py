@@ -14,13 +14,12 @@ import numpy as np
 import pytest
 
 from jaxround.apps.ring_lane_record import record_sumo
-from jaxround.apps.ring_lane_replay import SlotBook, arrays
+from jaxround.apps.ring_lane_replay import SlotBook, arrays, tables_for
 from jaxround.lanes import ring_changer, ring_rounds
 from jaxround.lanes.params import LaneChangeParams
 from jaxround.lanes.views import Memory
 from jaxround.scenario.config import load_config
 from jaxround.scenario.schedule import make_schedule
-from tests.sumo.test_ring_changer import tables_for
 
 pytestmark = pytest.mark.sumo
 

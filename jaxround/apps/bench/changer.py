@@ -43,16 +43,13 @@ from jaxround.apps.bench.jax_timing import (
     measure_jax,
 )
 from jaxround.apps.ring_lane_record import record_sumo
-from jaxround.apps.ring_lane_replay import SlotBook, arrays
+from jaxround.apps.ring_lane_replay import SlotBook, arrays, tables_for
 from jaxround.envs.roundabout import make
 from jaxround.lanes import ring_changer, ring_rounds
-from jaxround.lanes.best_lanes import LookAheadDriver
 from jaxround.lanes.params import LaneChangeParams
-from jaxround.lanes.ring_tables import ring_lanes
 from jaxround.lanes.views import Memory
 from jaxround.scenario.config import load_config
 from jaxround.scenario.schedule import make_schedule
-from jaxround.sumo_files.netconvert import network_file
 
 MILAN_STEPS = 200
 
@@ -72,8 +69,7 @@ def replayed_steps(config: str, duration_s: float, seed: int) -> dict[str, Any]:
     """SUMO's steps with the memory the replay gives each: the network
     arrays, and per step the vehicles and memory (lists), and ``dt``."""
     cfg = load_config(config)
-    driver = LookAheadDriver.from_config(cfg.drivers.hv, cfg.simulation.dt_s)
-    tables = ring_lanes(network_file(cfg), driver)
+    tables = tables_for(cfg)
     if (tables.paths.change_path < 0).all():
         raise SystemExit(f"--config {config}: no edge has two lanes to change between")
     steps, _ = record_sumo(cfg, tables.paths, duration_s, make_schedule(cfg, seed))
@@ -111,11 +107,12 @@ def measure(replayed: dict[str, Any], batch: int, skip_s: float) -> dict[str, An
     in_rounds = jax.jit(
         jax.vmap(functools.partial(ring_rounds.change_lanes, net, lc=lc, dt=dt))
     )
+    settled = in_rounds(veh, memory)
     same = np.array_equal(
         np.asarray(sequential(veh, memory)[0].direction),
-        np.asarray(in_rounds(veh, memory)[0].direction),
+        np.asarray(settled[0].direction),
     )
-    rounds = np.asarray(in_rounds(veh, memory)[2])
+    rounds = np.asarray(settled[2])
     seconds = {
         "sequential": _timed(lambda: sequential(veh, memory)),
         "rounds": _timed(lambda: in_rounds(veh, memory)),
