@@ -150,7 +150,15 @@ def leader_on(
     lane_end = net.lane_offset[path, target] + net.lane_length[target]
     ahead_on_lane = (on_lane > pos_i) | ((on_lane == pos_i) & scene.done)
     same = scene.others & (lane == target) & ahead_on_lane
-    partly = scene.others & (lane != target) & (front >= lane_end) & (back < lane_end)
+    # partly on the target: the front on a lane the target leads to (on
+    # this path or not: MSLane's partial occupators), the back on the target
+    upstream = net.upstream_lane[lane] == target  # (M, U)
+    to_start = jnp.min(jnp.where(upstream, net.upstream_dist[lane], jnp.inf), axis=1)
+    back_on_target = to_start + on_lane - driver.length  # along the target lane
+    partly = (
+        scene.others & (lane != target) & jnp.isfinite(to_start)
+        & (back_on_target < net.lane_length[target])
+    )  # fmt: skip
     dist = follow.brake_gap(me, scene.speed[i], dt) + min_gap_i
     lane_start_j = net.lane_offset[path, lane]
     reach = ((lane_end - me_at <= dist) & (lane_start_j - me_at <= dist)) | (
@@ -159,12 +167,13 @@ def leader_on(
     later = scene.others & (lane != target) & (lane_start_j >= lane_end) & reach
     gap = back - me_at - min_gap_i
 
-    def within(mask: jax.Array) -> jax.Array:
-        return jnp.where(mask, gap, jnp.inf)
+    def within(mask: jax.Array, gaps: jax.Array = gap) -> jax.Array:
+        return jnp.where(mask, gaps, jnp.inf)
 
+    partly_gap = back_on_target - pos_i - min_gap_i
     first = jnp.where(
         jnp.any(same), within(same),
-        jnp.where(jnp.any(partly), within(partly), within(later)),
+        jnp.where(jnp.any(partly), within(partly, partly_gap), within(later)),
     )  # fmt: skip
     slot = jnp.argmin(first)
     return slot, jnp.isfinite(first[slot]), first[slot]
