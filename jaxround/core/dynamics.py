@@ -11,6 +11,8 @@ approach.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import jax
 import jax.numpy as jnp
 
@@ -37,6 +39,10 @@ __all__ = [
     "ARRIVAL_EPS", "DEPART_OFFSET", "HALTING_SPEED", "final_speed", "planned_speed",
 ]  # fmt: skip
 
+#: ``patch(v_min, v_max) -> v_next``, float (M,) each: a lane-change model's
+#: say in the next speed within finalizeSpeed's bounds.
+SpeedPatch = Callable[[jax.Array, jax.Array], jax.Array]
+
 #: Speed below which SUMO counts a vehicle as waiting / halting (m/s).
 HALTING_SPEED = 0.1
 #: departPos="base": the front starts this far beyond the vehicle length (m).
@@ -60,6 +66,7 @@ def planned_speed(
     n_substeps: int,
     action_step: float,
     command: jax.Array | None = None,
+    patch: SpeedPatch | None = None,
 ) -> tuple[jax.Array, Registrations, jax.Array, jax.Array, jax.Array]:
     """Every vehicle's speed at the end of the step, as SUMO's IDM plans it:
     the phases of `jaxround.core.planning` and `jaxround.core.right_of_way`
@@ -75,6 +82,8 @@ def planned_speed(
             action step length (s).
         command: (M,) a TraCI speed command per vehicle for this step (NaN:
             none), applied where SUMO applies it (`jaxround.core.command`).
+        patch: the lane-change model's ``patchSpeed`` on finalizeSpeed's
+            bounds (two-lane roads: `jaxround.envs.lane_changes`); None: none.
 
     Returns:
         (v_next, regs, blocked, leader, gap): float (M,), this step's
@@ -120,7 +129,7 @@ def planned_speed(
         v_next = final_speed(
             net, car, veh, start, leader, limits, line, requests,
             v_follow=v_follow, v_hold=v_hold, blocked_w=blocked_w, step=step,
-            command=command,
+            command=command, patch=patch,
         )  # fmt: skip
     return v_next, requests.regs, blocked_w > 0.5, leader.slot, leader.gap
 
@@ -140,6 +149,7 @@ def final_speed(
     blocked_w: jax.Array,
     step: Stepping,
     command: jax.Array | None,
+    patch: SpeedPatch | None = None,
 ) -> jax.Array:
     """The speed at the end of the step, float (M,) (0 for empty slots):
     the safe speed, stopping at the yield line where the entry is blocked or
@@ -169,10 +179,17 @@ def final_speed(
     v_safe = jnp.where(requests.slowed, v_hold, v_safe)
     v_safe = cross_or_stop(car, veh, start, line, requests, v_safe, step=step)
     v_safe = blend(must_stop_w, v_before_line, v_safe)
-    v_next = finalize.next_speed(
-        speed, v_safe, start.v_lane, accel=car.accel, decel=car.decel,
-        emergency_decel=car.emergency_decel, dt=dt, action_step=step.action_step,
-    )  # fmt: skip
+    if patch is None:
+        v_next = finalize.next_speed(
+            speed, v_safe, start.v_lane, accel=car.accel, decel=car.decel,
+            emergency_decel=car.emergency_decel, dt=dt, action_step=step.action_step,
+        )  # fmt: skip
+    else:  # MSCFModel::finalizeSpeed hands its bounds to patchSpeed
+        v_min, v_max = finalize.speed_bounds(
+            speed, v_safe, start.v_lane, accel=car.accel, decel=car.decel,
+            emergency_decel=car.emergency_decel, dt=dt, action_step=step.action_step,
+        )  # fmt: skip
+        v_next = finalize.snap_speed(patch(v_min, jnp.maximum(v_min, v_max)), dt)
     if command is not None:  # executeMove -> processTraCISpeedControl
         v_next = traci.influence_speed(
             command, v_next, v_safe=v_safe, v_max=start.v_max_next,

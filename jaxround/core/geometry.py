@@ -32,7 +32,7 @@ class NetArrays:
     route_lanes: jax.Array  # (R, K)
     route_lane_start: jax.Array  # (R, K), +inf padded
     route_length: jax.Array  # (R,)
-    route_origin: jax.Array  # (R,)
+    route_origin: jax.Array  # (R,) the entry (G) each route starts at
     lane_offset: jax.Array  # (R, L), nan where off-route
     yield_offset: jax.Array  # (R,)
     conflict_offset: jax.Array  # (R, G), nan where the route does not pass
@@ -52,6 +52,10 @@ class NetArrays:
     internal_before: jax.Array  # (R, G) internal metres up to the link before it
     next_link_index: jax.Array  # (R,) route index k of the first link after the entry
     next_link_offset: jax.Array  # (R,) where it starts along the route (+inf: none)
+    route_arrives: jax.Array  # (R,) bool: vehicles leave at the route's end
+    all_arrive: bool  # every route's does (static: one-lane roundabouts)
+    entry_crossing: jax.Array  # (G,) the entry whose through link g's crosses
+    has_crossings: bool  # some entry's does (static: two-lane entries)
 
     @classmethod
     def from_network(cls, net: CompiledNetwork) -> NetArrays:
@@ -68,7 +72,7 @@ class NetArrays:
         internal_cum = np.concatenate(
             [np.zeros((r_n, 1)), np.cumsum(np.where(is_int, seg, 0.0), 1)[:, :-1]], 1
         )
-        g_n = net.n_legs
+        g_n = net.n_entries
         conflict_index = np.zeros((r_n, g_n), np.int32)
         for r in range(r_n):
             for g in range(g_n):
@@ -107,7 +111,7 @@ class NetArrays:
             route_lanes=jnp.asarray(net.route_lanes),
             route_lane_start=jnp.asarray(start, f),
             route_length=jnp.asarray(net.route_length, f),
-            route_origin=jnp.asarray(net.route_od[:, 0]),
+            route_origin=jnp.asarray(net.entry_of_route),
             lane_offset=jnp.asarray(net.lane_offset, f),
             yield_offset=jnp.asarray(net.yield_offset, f),
             conflict_offset=jnp.asarray(net.conflict_offset, f),
@@ -127,6 +131,17 @@ class NetArrays:
             internal_before=jnp.asarray(internal_cum[rows, conflict_index - 1], f),
             next_link_index=jnp.asarray(next_link),
             next_link_offset=jnp.asarray(next_offset, f),
+            route_arrives=jnp.asarray(
+                np.ones(r_n, bool) if net.route_arrives is None else net.route_arrives
+            ),
+            all_arrive=net.all_arrive,
+            entry_crossing=jnp.asarray(
+                -np.ones(g_n, np.int32)
+                if net.entry_crossing is None
+                else net.entry_crossing
+            ),
+            has_crossings=net.entry_crossing is not None
+            and bool(np.any(net.entry_crossing >= 0)),
         )
 
 

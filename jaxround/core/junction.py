@@ -253,11 +253,43 @@ def entry_blocked_weight(
     (the foe passed long enough ago, the foe arrives late enough) are smooth
     in their margins (s), so the decision has a gradient in jm_timegap_minor,
     the arrival and leave times, and through them every driver parameter."""
+    ego_slot = jnp.arange(route.shape[0]) if ego_slot is None else ego_slot
+    leg = net.route_origin[route]  # (E,)
+    weight = _foe_link_weight(
+        params, leg, ego, regs, imp, step_label, dt, ego_slot,
+        same_target=True, debug=debug,
+    )  # fmt: skip
+    if debug or not net.has_crossings:
+        return weight
+    # a left entry lane's link also crosses the outer ring lane's through
+    # link (MSLink::opened tests every foe link; blockedByFoe's time gaps
+    # apply only to a foe with the same target lane)
+    crossed = net.entry_crossing[leg]  # (E,) -1: none
+    cross = _foe_link_weight(
+        params, jnp.maximum(crossed, 0), ego, regs, imp, step_label, dt,
+        ego_slot, same_target=False,
+    )  # fmt: skip
+    return soft_or(weight, jnp.where(crossed >= 0, cross, 0.0))
+
+
+def _foe_link_weight(
+    params: CarFollowing,
+    leg: jax.Array,
+    ego: Approach,
+    regs: Registrations,
+    imp: jax.Array,
+    step_label: jax.Array,
+    dt: float,
+    ego_slot: jax.Array,
+    *,
+    same_target: bool,
+    debug: bool = False,
+) -> jax.Array:
+    """`entry_blocked_weight` against the registrations on one foe link per
+    ego: column ``leg`` (E,) of `regs` (SUMO's MSLink::blockedByFoe)."""
     p = params
     b = p.decel
     m = regs.ok.shape[0]
-    ego_slot = jnp.arange(route.shape[0]) if ego_slot is None else ego_slot
-    leg = net.route_origin[route]  # (E,)
     take = lambda x: x[:, leg].T  # noqa: E731  (E, M) on the ego's leg
     ok, dist = take(regs.ok), take(regs.dist)
     f_at, f_lt = take(regs.arrival), take(regs.leave)
@@ -291,11 +323,14 @@ def entry_blocked_weight(
         tg = tg[ego_slot][:, None]
     temp = p.relax_temperature
     behind = soft_step(a_t - f_lt, temp)
-    blocked_behind = soft_or(
-        soft_step(tg - (a_t - f_lt), temp), (f_ls**2 <= a_s**2).astype(jnp.float32)
-    )
     ahead = soft_step(f_at_imp - (l_t + tg), temp)
-    blocked_ahead = (l_s**2 <= f_asb**2).astype(jnp.float32)
+    if same_target:
+        blocked_behind = soft_or(
+            soft_step(tg - (a_t - f_lt), temp), (f_ls**2 <= a_s**2).astype(jnp.float32)
+        )
+        blocked_ahead = (l_s**2 <= f_asb**2).astype(jnp.float32)
+    else:  # a crossing: blocked only while the two links' times overlap
+        blocked_behind = blocked_ahead = jnp.zeros_like(behind)
     blocked = blend(behind, blocked_behind, blend(ahead, blocked_ahead, 1.0))
     others = jnp.arange(m)[None, :] != ego_slot[:, None]
     if debug:  # every intermediate, for tracing a decision

@@ -59,6 +59,17 @@ class CompiledNetwork:
             through-link of leg i (start of ``ring_through[i]``), nan if it
             does not pass that link.
         entry_visibility: float (n_legs,) foe visibility distance of each entry (m).
+        route_entry: int (R,) the entry (index into the entry arrays) each
+            route starts at; None: its origin leg. A two-lane roundabout
+            (`jaxround.lanes.ring_network`) has one entry per entry lane, G
+            of them, and a route per lane path.
+        entry_crossing: int (G,) the entry whose ring through lane each
+            entry's link crosses and yields to as well (-1: none; None: no
+            entry has one): a left entry lane's link crosses the outer ring
+            lane going on.
+        route_arrives: bool (R,) the route ends where vehicles leave; None:
+            all do. A lane path that ends on the ring does not: a vehicle
+            must change lanes before its end.
     """
 
     n_legs: int
@@ -83,10 +94,30 @@ class CompiledNetwork:
     yield_offset: np.ndarray
     conflict_offset: np.ndarray
     entry_visibility: np.ndarray
+    route_entry: np.ndarray | None = None
+    route_arrives: np.ndarray | None = None
+    entry_crossing: np.ndarray | None = None
 
     @property
     def n_routes(self) -> int:
         return int(self.route_od.shape[0])
+
+    @property
+    def n_entries(self) -> int:
+        """G: entries with a yield line (one per leg on one-lane entries)."""
+        return int(self.entry_lane.shape[0])
+
+    @property
+    def entry_of_route(self) -> np.ndarray:
+        """int (R,) the entry each route starts at."""
+        if self.route_entry is None:
+            return self.route_od[:, 0]
+        return self.route_entry
+
+    @property
+    def all_arrive(self) -> bool:
+        """Every route ends where vehicles leave (a static fact)."""
+        return self.route_arrives is None or bool(np.all(self.route_arrives))
 
     @property
     def n_lanes(self) -> int:
@@ -97,6 +128,5 @@ class CompiledNetwork:
         """Length of one lap of the ring (ring edges and through lanes)."""
         ids = {lid: k for k, lid in enumerate(self.lane_ids)}
         ring = [ids[f"{ring_edge(i)}_0"] for i in range(self.n_legs)]
-        return float(
-            self.lane_length[ring].sum() + self.lane_length[self.ring_through].sum()
-        )
+        through = self.ring_through[: self.n_legs]  # the right lanes' entries
+        return float(self.lane_length[ring].sum() + self.lane_length[through].sum())

@@ -22,6 +22,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from jaxround.core.idm import IDMParams
+from jaxround.core.lane_change_params import LaneChangeParams
 from jaxround.scenario.config import SHARED_DRIVER_FIELDS, DriverConfig, ScenarioConfig
 
 #: Seconds of waiting that add 1 to a driver's impatience (SUMO's
@@ -168,6 +169,9 @@ class EnvParams:
         demand: `DemandParams` of the departures drawn at reset.
         reward: `RewardParams` of the AVs' rewards.
         relax_temperature: 0 for the exact step (see `CarFollowing`).
+        lane_change: LC2013's `LaneChangeParams` of both classes on a
+            roundabout with two-lane roads (SUMO's defaults: the config has
+            no lane-change keys yet); None on one-lane roads.
     """
 
     human: DriverParams
@@ -176,6 +180,7 @@ class EnvParams:
     demand: DemandParams
     reward: RewardParams
     relax_temperature: jax.Array
+    lane_change: LaneChangeParams | None
 
     @classmethod
     def from_config(cls, cfg: ScenarioConfig) -> EnvParams:
@@ -210,6 +215,9 @@ class EnvParams:
                 conflict_weight=f(cfg.agent.conflict_weight),
             ),
             relax_temperature=f(0.0),
+            lane_change=None
+            if cfg.network.single_lane
+            else jax.tree.map(f, LaneChangeParams()),
         )
 
     def for_vehicles(self, is_av: jax.Array) -> CarFollowing:

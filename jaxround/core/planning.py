@@ -175,6 +175,12 @@ def lane_limits(
         speed, start.v_lane, vtype=car.idm, dt=dt, n_substeps=step.n_substeps,
         seen=to_end,
     )  # fmt: skip
+    if not net.all_arrive:  # a lane path that ends on the ring: stop at its end
+        v_end = idm.idm_stop_speed(
+            speed, to_end - STOP_OFFSET, start.v_lane, vtype=car.idm, dt=dt,
+            n_substeps=step.n_substeps, action_step=step.action_step,
+        )  # fmt: skip
+        v_free = jnp.where(net.route_arrives[route], v_free, jnp.minimum(v_free, v_end))
     return LaneLimits(per_lane, later, jnp.min(per_lane, axis=1), v_free)
 
 

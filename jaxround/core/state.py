@@ -95,7 +95,7 @@ def leg_order(origin: jax.Array, n_legs: int) -> jax.Array:
 
 
 class Registrations(NamedTuple):
-    """Approaches registered on the ring's through link of every leg. (M, G).
+    """Approaches registered on the ring's through link of every entry. (M, G).
 
     Times are absolute (s); `ok` says the vehicle requests the link (it will
     drive it, has not reached it, is within its look-ahead, wants to pass).
@@ -216,6 +216,8 @@ class EnvState:
             the previous step's registrations).
         stats: the episode's `EpisodeStats` (trip emissions, queues, slot
             overflow, collisions).
+        lanes: on roundabouts with two-lane roads, what lane changing
+            keeps (`jaxround.envs.lane_changes.LaneState`); None elsewhere.
     """
 
     step: jax.Array
@@ -238,6 +240,7 @@ class EnvState:
     arrival_s: jax.Array
     registrations: Registrations
     stats: EpisodeStats
+    lanes: Any = None
 
     def validate(self) -> None:
         """Check shapes and dtypes: per-slot fields (..., M), per-vehicle fields

@@ -18,7 +18,6 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from jaxround.core import dynamics, emissions, geometry, idm
 from jaxround.core.network import CompiledNetwork
@@ -33,13 +32,14 @@ from jaxround.core.state import (
 from jaxround.envs import conflicts, departures, observe, queues, schedules
 from jaxround.envs.actions import command_from_action
 from jaxround.envs.assertiveness import retuned_params
+from jaxround.envs.lane_changes import LaneChanger, LaneState, compiled_network
 from jaxround.envs.reward import av_reward, system_reward
 from jaxround.envs.slots import resolve_slots
-from jaxround.envs.supported import check_driver_classes, check_single_lane
+from jaxround.envs.supported import check_driver_classes, check_jax_lanes
 from jaxround.envs.wrappers import auto_reset
+from jaxround.lanes.params import LaneChangeParams
 from jaxround.scenario.config import ScenarioConfig, load_config
 from jaxround.scenario.schedule import Schedule as NumpySchedule
-from jaxround.sumo_files.compile import compile_network
 from jaxround.sumo_files.netconvert import network_file
 
 #: Extra seconds after the demand horizon for the last vehicles to leave.
@@ -47,7 +47,9 @@ DEFAULT_DRAIN_S = 300.0
 
 
 class RoundaboutEnv:
-    """A single-lane roundabout with M vehicle slots and N scheduled vehicles.
+    """A roundabout with M vehicle slots and N scheduled vehicles. On two-lane
+    roads (`jaxround.lanes.ring_network`'s network, `lane_changer` given)
+    the vehicles change lanes after every move (`jaxround.envs.lane_changes`).
 
     M: given, else the config's ``simulation.max_vehicles``, else what the
     scenario's traffic needs (`jaxround.envs.slots`); ``"road"``: what the road
@@ -61,9 +63,15 @@ class RoundaboutEnv:
         network: CompiledNetwork,
         max_vehicles: int | str | None = None,
         episode_s: float | None = None,
+        lane_changer: LaneChanger | None = None,
     ) -> None:
-        check_single_lane(cfg)
+        check_jax_lanes(cfg)
         check_driver_classes(cfg)
+        if lane_changer is None and not cfg.network.single_lane:
+            raise ValueError(
+                f"{cfg.name!r} has two-lane roads: build its environment with "
+                "`jaxround.make` (a lane-path network and a lane changer)"
+            )
         if network.n_legs != cfg.n_legs:
             raise ValueError(
                 f"network has {network.n_legs} legs, config {cfg.name!r} "
@@ -71,10 +79,11 @@ class RoundaboutEnv:
             )
         self.cfg = cfg
         self.network = network
+        self.lane_changer = lane_changer
         self.net = geometry.NetArrays.from_network(network)
         self.max_vehicles = resolve_slots(
             max_vehicles, cfg, network,
-            build_env=lambda m, s: RoundaboutEnv(cfg, network, m, episode_s=s),
+            build_env=lambda m, s: RoundaboutEnv(cfg, network, m, s, lane_changer),
         )  # fmt: skip
         self.n_schedule = cfg.demand.n_vehicles
         self.dt = cfg.simulation.dt_s
@@ -88,12 +97,7 @@ class RoundaboutEnv:
         )
         self.episode_steps = int(math.ceil(self.episode_s / self.dt))
         self.observer = cfg.agent.observer
-        dest = np.zeros(network.route_index.max() + 1, np.int32)
-        for o in range(network.n_legs):
-            for d in range(network.n_legs):
-                if network.route_index[o, d] >= 0:
-                    dest[network.route_index[o, d]] = d
-        self.route_destination = jnp.asarray(dest)
+        self.route_destination = jnp.asarray(network.route_od[:, 1])
         # jitted once per environment, as gymnax jits its `reset`: a call
         # outside any trace compiles one program instead of each of its
         # several hundred operations (inside a trace it is inlined)
@@ -160,7 +164,7 @@ class RoundaboutEnv:
         self, schedule: Schedule, params: EnvParams
     ) -> tuple[jax.Array, EnvState]:
         """`reset_to_schedule`'s body: empty slots, then the first insertions."""
-        m, n, g = self.max_vehicles, self.n_schedule, self.n_legs
+        m, n, g = self.max_vehicles, self.n_schedule, self.network.n_entries
         zf = jnp.zeros(m, jnp.float32)
         state = EnvState(
             step=jnp.int32(0),
@@ -183,6 +187,9 @@ class RoundaboutEnv:
             arrival_s=jnp.full(n, jnp.nan, jnp.float32),
             registrations=Registrations.empty(m, g),
             stats=EpisodeStats.zeros(n, g, m),
+            lanes=None
+            if self.lane_changer is None
+            else LaneState.zeros(m, n, self.network.n_lanes),
         )
         state = self._insert(state, params, jnp.float32(0.0))
         return self.observation(state, params), state
@@ -221,9 +228,9 @@ class RoundaboutEnv:
         ``speed + action * dt`` (`command_from_action`), which SUMO applies
         while it plans (`jaxround.core.command`): under speed mode 31 it can slow
         an AV below its IDM speed, never raise it above its safe speed; a NaN
-        action leaves the AV to its vType. ``action[:, 1]`` (lane change) has
-        nothing to act on: every lane of these roundabouts is the only one of
-        its road.
+        action leaves the AV to its vType. ``action[:, 1]`` (lane change) is not
+        applied: on two-lane roads every vehicle changes lanes as LC2013
+        decides (`jaxround.envs.lane_changes`).
 
         Returns:
             (obs, state, reward, done, info): reward float (M,) for the AV
@@ -248,15 +255,21 @@ class RoundaboutEnv:
                 command = jnp.full_like(state.speed, jnp.nan)
             else:
                 command = command_from_action(state, action, pv, self.dt)
+        lc = LaneChangeParams() if p.lane_change is None else p.lane_change
+        patch = (
+            None if self.lane_changer is None else self.lane_changer.patch(state, lc)
+        )
         v_next, regs, _, leader, gap = dynamics.planned_speed(
             net, pv, state.route, state.pos, state.speed, state.speed_factor,
             state.active, state.waiting_s, state.registrations, t, self.dt,
-            self.n_substeps, self.action_step, command=command,
+            self.n_substeps, self.action_step, command=command, patch=patch,
         )  # fmt: skip
         with jax.named_scope("move"):
             pos_next = state.pos + v_next * self.dt
             route_len = net.route_length[state.route]
             arrived = state.active & (pos_next > route_len - dynamics.ARRIVAL_EPS)
+            if not net.all_arrive:  # a lane path ending on the ring: no exit
+                arrived = arrived & net.route_arrives[state.route]
             # a vehicle whose bumper passed the back of the one it followed
             lead = jnp.maximum(leader, 0)
             gap_next = gap + (v_next[lead] - v_next) * self.dt
@@ -317,7 +330,10 @@ class RoundaboutEnv:
             stats=stats,
         )
 
-        # 3. insertions, then the queue statistics of the new time
+        # 3. lane changes (two-lane roads), insertions, the queues of the new time
+        if self.lane_changer is not None:
+            with jax.named_scope("lane_changes"):
+                state, _ = self.lane_changer(state, lc)
         with jax.named_scope("insertion"):
             state = self._insert(state, p, t + self.dt)
         with jax.named_scope("queues"):
@@ -376,9 +392,8 @@ def make(
         (env, default params).
     """
     cfg = scenario if isinstance(scenario, ScenarioConfig) else load_config(scenario)
-    check_single_lane(cfg)  # before netconvert runs
+    check_jax_lanes(cfg)  # before netconvert runs
     net_path = network_file(cfg, workdir)
-    env = RoundaboutEnv(
-        cfg, compile_network(net_path, cfg.n_legs), max_vehicles, episode_s
-    )
+    network, changer = compiled_network(cfg, net_path)
+    env = RoundaboutEnv(cfg, network, max_vehicles, episode_s, changer)
     return env, env.default_params

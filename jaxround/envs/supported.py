@@ -1,8 +1,10 @@
 """What of a scenario the JAX environment runs, checked before it is built.
 
 SUMO runs every valid scenario; the JAX environment (`jaxround.envs.roundabout`)
-runs those with one lane on every road, whose two driver classes share the
-vType numbers it keeps once (`jaxround.scenario.config.SHARED_DRIVER_FIELDS`).
+runs those with one-lane exits (rings and entries of one or two lanes),
+whose two driver classes share the vType numbers it keeps once
+(`jaxround.scenario.config.SHARED_DRIVER_FIELDS`). Some tools still need one
+lane on every road (`check_single_lane`).
 A config outside that gets a `ConfigError` naming its keys, before netconvert
 or SUMO runs.
 """
@@ -16,15 +18,37 @@ from jaxround.scenario.config import (
 )
 
 
-def check_single_lane(cfg: ScenarioConfig) -> None:
-    """The JAX environment has one lane on every road; a config with a
-    two-lane ring, entry or exit gets a clear error naming those keys."""
+def check_single_lane(cfg: ScenarioConfig, what: str = "this command") -> None:
+    """What still needs one lane on every road (an AV policy or a scripted AV
+    controller, which observe the traffic as one-lane routes; the tools
+    built on them) refuses a config with a two-lane ring, entry or exit,
+    naming those keys and `what` it was asked for."""
     keys = cfg.network.multi_lane_keys()
     if keys:
         raise ConfigError(
-            f"{', '.join(keys)}: two-lane roundabouts run in SUMO only for now "
-            "(`jaxround sumo`, `sumo_export.runner`); the JAX environment, and "
-            "so parity, training and evaluation in JAX, has one lane per road"
+            f"{', '.join(keys)}: {what} needs one lane on every road for now. "
+            "On two-lane roads the JAX environment drives human drivers and "
+            "uncontrolled AVs (`jaxround parity --config ...`); AV policies, "
+            "scripted AV controllers and the lane-change action do not run "
+            "there yet"
+        )
+
+
+def check_jax_lanes(cfg: ScenarioConfig) -> None:
+    """The JAX environment drives one-lane exits only: netconvert gives the
+    inner ring lane's exit an internal junction (a second yield point inside
+    the junction) that the step does not have; a config with a two-lane exit
+    gets a clear error naming those keys."""
+    keys = [
+        f"network.legs[{i}].exit_lanes: 2"
+        for i, leg in enumerate(cfg.network.legs)
+        if leg.exit_lanes != 1
+    ]
+    if keys:
+        raise ConfigError(
+            f"{', '.join(keys)}: two-lane exits run in SUMO only for now "
+            "(`jaxround sumo`, `sumo_export.runner`); the JAX environment "
+            "drives two-lane rings and entries with one-lane exits"
         )
 
 

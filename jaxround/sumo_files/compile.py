@@ -121,26 +121,9 @@ def compile_network(net_file: str | Path, n_legs: int | None = None) -> Compiled
                 )
             lane_next[k] = index.get(outs[0].getToLane().getID(), -1)
     shapes = tuple(np.asarray(ln.getShape(), np.float64) for ln in lanes)
-    lane_sibling = -np.ones(n_lanes, np.int32)
-    lane_diverge = np.zeros(n_lanes)
-    for k, ln in enumerate(lanes):
-        if ln.getEdge().getFunction() != "internal":
-            continue
-        pred = [x.getID() for x in ln.getIncoming()]
-        for j, other in enumerate(lanes):
-            same_pred = [x.getID() for x in other.getIncoming()] == pred
-            if j != k and other.getEdge().getFunction() == "internal" and same_pred:
-                lane_sibling[k] = j
-                lane_diverge[k] = _divergence(shapes[k], shapes[j])
-    lane_partner = -np.ones(n_lanes, np.int32)
-    lane_converge = np.zeros(n_lanes)
-    for k in range(n_lanes):
-        for j in range(n_lanes):
-            if j != k and lane_next[k] >= 0 and lane_next[j] == lane_next[k]:
-                lane_partner[k] = j
-                lane_converge[k] = _dist_to_divergence(
-                    shapes[k], lane_length[k], shapes[j], lane_length[j]
-                )
+    lane_sibling, lane_diverge, lane_partner, lane_converge = internal_geometry(
+        lanes, shapes, lane_length, lane_next
+    )
 
     n_routes = len(route_seq)
     k_max = max(len(s) for s in route_seq)
@@ -188,6 +171,46 @@ def compile_network(net_file: str | Path, n_legs: int | None = None) -> Compiled
         conflict_offset=conflict_offset,
         entry_visibility=np.asarray(visibility),
     )
+
+
+def internal_geometry(
+    lanes: list,
+    shapes: tuple[np.ndarray, ...],
+    lane_length: np.ndarray,
+    lane_next: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Where internal lanes part and join. L lanes (sumolib's, in the order of
+    the arrays).
+
+    Returns:
+        (sibling, diverge, partner, converge): int (L,) the other internal lane
+        leaving the same lane (-1: none), float (L,) where they part
+        (`_divergence`); int (L,) the other internal lane merging into the
+        same lane (-1: none), float (L,) the length behind the merge
+        (`_dist_to_divergence`).
+    """  # fmt: skip
+    n_lanes = len(lanes)
+    lane_sibling = -np.ones(n_lanes, np.int32)
+    lane_diverge = np.zeros(n_lanes)
+    for k, ln in enumerate(lanes):
+        if ln.getEdge().getFunction() != "internal":
+            continue
+        pred = [x.getID() for x in ln.getIncoming()]
+        for j, other in enumerate(lanes):
+            same_pred = [x.getID() for x in other.getIncoming()] == pred
+            if j != k and other.getEdge().getFunction() == "internal" and same_pred:
+                lane_sibling[k] = j
+                lane_diverge[k] = _divergence(shapes[k], shapes[j])
+    lane_partner = -np.ones(n_lanes, np.int32)
+    lane_converge = np.zeros(n_lanes)
+    for k in range(n_lanes):
+        for j in range(n_lanes):
+            if j != k and lane_next[k] >= 0 and lane_next[j] == lane_next[k]:
+                lane_partner[k] = j
+                lane_converge[k] = _dist_to_divergence(
+                    shapes[k], lane_length[k], shapes[j], lane_length[j]
+                )
+    return lane_sibling, lane_diverge, lane_partner, lane_converge
 
 
 def _dist_to_divergence(

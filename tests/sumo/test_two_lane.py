@@ -1,6 +1,5 @@
 """A two-lane roundabout in real SUMO: netconvert's lane-to-lane joins at
-its junctions, a short run in which vehicles arrive and change lanes, and
-the JAX side's refusal of it."""
+its junctions, a short run in which vehicles arrive and change lanes."""
 
 from __future__ import annotations
 
@@ -11,7 +10,7 @@ import pytest
 import sumolib
 
 from jaxround.core.network import NetworkError
-from jaxround.scenario.config import ConfigError, config_from_dict, load_config
+from jaxround.scenario.config import config_from_dict, load_config
 from jaxround.scenario.edges import in_edge, out_edge, ring_edge
 from jaxround.scenario.schedule import make_schedule
 from jaxround.sumo_files.compile import compile_network
@@ -103,13 +102,13 @@ def test_two_lane_roundabout_runs_in_sumo(tmp_path: Path) -> None:
     assert (tmp_path / "two_lane.rou.xml").read_text().count('departLane="best"') == 200
 
 
-def test_the_jax_environment_refuses_two_lanes() -> None:
-    """Built from a compiled single-lane network, `RoundaboutEnv` still
-    refuses a config with two-lane roads."""
+def test_the_jax_environment_needs_the_lane_changer() -> None:
+    """Built by hand from a single-lane network and without a lane changer,
+    `RoundaboutEnv` refuses a config with two-lane roads, naming `make`."""
     from jaxround.envs.roundabout import RoundaboutEnv
 
     milan = compile_network(network_file(load_config("milan")), 4)
-    with pytest.raises(ConfigError, match="run in SUMO only for now"):
+    with pytest.raises(ValueError, match="has two-lane roads: build its environment"):
         RoundaboutEnv(load_config("two_lane"), milan, max_vehicles=8)
 
 

@@ -21,17 +21,27 @@ ALLOWED = {
     "jaxround.scenario": set(),
     "jaxround.core": {"jaxround.scenario"},
     "jaxround.sumo_files": {"jaxround.scenario", "jaxround.core"},
-    "jaxround.envs": {"jaxround.scenario", "jaxround.core", "jaxround.sumo_files"},
+    # SUMO's lane-change model and the lane paths, used by the step on
+    # two-lane roads
+    "jaxround.lanes": {"jaxround.scenario", "jaxround.core", "jaxround.sumo_files"},
+    "jaxround.envs": {
+        "jaxround.scenario",
+        "jaxround.core",
+        "jaxround.sumo_files",
+        "jaxround.lanes",
+    },  # fmt: skip
     "jaxround.analysis": {
         "jaxround.scenario",
         "jaxround.core",
         "jaxround.sumo_files",
+        "jaxround.lanes",
         "jaxround.envs",
     },  # fmt: skip
     "jaxround.integrations": {
         "jaxround.scenario",
         "jaxround.core",
         "jaxround.sumo_files",
+        "jaxround.lanes",
         "jaxround.envs",
     },  # fmt: skip
 }

@@ -132,19 +132,22 @@ def test_lane_counts_are_refused_by_key(base: str, edit, message: str) -> None:
         config_from_dict(d)
 
 
-def test_jax_refuses_two_lanes_before_netconvert_runs(
+def test_jax_refuses_two_lane_exits_before_netconvert_runs(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    """The JAX step drives two-lane rings and entries, not two-lane exits
+    (the inner lane's exit has an internal junction): `make` and parity
+    refuse one, naming its key, before a network is built."""
     from jaxround.apps.parity import parity_report
     from jaxround.envs.roundabout import make
 
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
-    message = (
-        r"network\.ring_lanes: 2, network\.legs\[0\]\.entry_lanes: 2, .*: "
-        r"two-lane roundabouts run in SUMO only for now"
-    )
+    d = builtin_dict("two_lane")
+    d["network"]["legs"][1]["exit_lanes"] = 2
+    cfg = config_from_dict(d)
+    message = r"network\.legs\[1\]\.exit_lanes: 2: two-lane exits run in SUMO only"
     with pytest.raises(ConfigError, match=message):
-        make("two_lane")
+        make(cfg)
     with pytest.raises(ConfigError, match=message):
-        parity_report(load_config("two_lane"), seeds=[0])
+        parity_report(cfg, seeds=[0])
     assert not any(tmp_path.iterdir())  # no network was built

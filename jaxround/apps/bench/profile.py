@@ -60,6 +60,7 @@ PHASES: tuple[tuple[str, str], ...] = (
     ("surrogate_safety", "MSDevice_SSM: following TTC, DRAC and conflicts"),
     ("emissions", "the emission model (docs/sumo-map.md)"),
     ("reward", "the agents' reward"),
+    ("lane_changes", "MSEdgeControl::changeLanes (two-lane roads)"),
     ("insertion", "MSInsertionControl::emitVehicles"),
     ("queues", "queue statistics"),
     ("observation", "the agents' observation"),

@@ -1,0 +1,166 @@
+"""Lane changes in the roundabout step: LC2013 after every move.
+
+SUMO's ``MSNet::simulationStep`` moves every vehicle
+(``MSEdgeControl::executeMovements``, arrivals leave), then changes lanes
+(``MSEdgeControl::changeLanes``), then inserts. `LaneChanger` is that middle
+phase for a roundabout with two-lane roads: every vehicle's LC2013 memory
+is reset for the step (``MSLCM_LC2013::prepareStep``, at the end of
+``executeMove``), then `jaxround.lanes.ring_changer` (one vehicle after
+another: cheaper on a CPU) or `jaxround.lanes.ring_rounds` (all at once in
+rounds, the same changes: cheaper on a GPU) moves vehicles between lane
+paths, which are the step's routes (`jaxround.lanes.ring_network`).
+
+Shapes: M vehicle slots, N scheduled vehicles.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from jaxround.core.dynamics import SpeedPatch
+from jaxround.core.network import CompiledNetwork
+from jaxround.core.state import EnvState
+from jaxround.lanes import ring_changer, ring_rounds
+from jaxround.lanes.best_lanes import LookAheadDriver
+from jaxround.lanes.follow import Driver
+from jaxround.lanes.memory import patch_speed, prepare_step
+from jaxround.lanes.params import LaneChangeParams
+from jaxround.lanes.ring_network import compile_lane_network
+from jaxround.lanes.ring_tables import ring_lanes
+from jaxround.lanes.views import Memory
+from jaxround.scenario.config import DriverConfig, ScenarioConfig
+from jaxround.sumo_files.compile import compile_network
+
+#: SUMO's `MSVehicleControl::getMaxSpeedFactor` with its default vType loaded
+#: (speedFactor normc(1, 0.1, 0.2, 2)): the followers' search distance.
+MAX_SPEED_FACTOR = 2.0
+
+
+@struct.dataclass
+class LaneState:
+    """What lane changing keeps from step to step.
+
+    Attributes:
+        memory: LC2013's `Memory` of each slot (M, ...).
+        changes: int (N,) lane changes each scheduled vehicle made.
+        lane_seconds: float (L,) vehicle-seconds on each lane (a vehicle
+            counts on the lane of its front after the step's changes), as
+            SUMO's lane data (``--lanedata-output``) sums ``sampledSeconds``.
+    """
+
+    memory: Memory
+    changes: jax.Array
+    lane_seconds: jax.Array
+
+    @classmethod
+    def zeros(cls, m: int, n: int, n_lanes: int) -> LaneState:
+        return cls(
+            Memory.zeros(m), jnp.zeros(n, jnp.int32), jnp.zeros(n_lanes, jnp.float32)
+        )
+
+
+def driver_numbers(d: DriverConfig) -> Driver:
+    """A vType's car-following numbers as the lane changer reads them."""
+    return Driver(d.accel, d.decel, d.emergency_decel, d.tau, d.min_gap, d.length,
+                  d.delta, d.max_speed)  # fmt: skip
+
+
+def compiled_network(
+    cfg: ScenarioConfig, net_file: str | Path
+) -> tuple[CompiledNetwork, LaneChanger | None]:
+    """The step's network of a scenario, and its lane changer where a road has
+    two lanes (routes are then lane paths: `jaxround.lanes.ring_network`)."""
+    if cfg.network.single_lane:
+        return compile_network(net_file, cfg.n_legs), None
+    network, _ = compile_lane_network(net_file, cfg.n_legs)
+    return network, LaneChanger(cfg, net_file)
+
+
+class LaneChanger:
+    """The lane-change phase of a two-lane roundabout's step (static).
+
+    Args:
+        cfg: the scenario.
+        net_file: its `.net.xml` (the paths' numbering is `lane_paths`').
+        in_rounds: `ring_rounds` instead of the turns one by one; None:
+            rounds on an accelerator, turns on a CPU.
+    """
+
+    def __init__(
+        self, cfg: ScenarioConfig, net_file: str | Path, in_rounds: bool | None = None
+    ) -> None:
+        dt = cfg.simulation.dt_s
+        hv, av = cfg.drivers.hv, cfg.drivers.av
+        tables = ring_lanes(net_file, LookAheadDriver.from_config(hv, dt))
+        min_decel = min(hv.decel, av.decel, 4.5)
+        self.arrays = ring_changer.RingArrays.from_tables(
+            tables, MAX_SPEED_FACTOR, min_decel
+        )
+        self.hv, self.av = driver_numbers(hv), driver_numbers(av)
+        self.dt = dt
+        if in_rounds is None:
+            in_rounds = jax.default_backend() != "cpu"
+        self.in_rounds = in_rounds
+
+    def patch(self, state: EnvState, lc: LaneChangeParams) -> SpeedPatch:
+        """``MSLCM_LC2013::patchSpeed`` for the next move: the speed advices
+        and wishes the last lane changes left in the memory."""
+        memory = state.lanes.memory
+
+        def patched(v_min: jax.Array, v_max: jax.Array) -> jax.Array:
+            return patch_speed(memory, v_min, v_max, v_max, lc.cooperative)
+
+        return patched
+
+    def __call__(
+        self, state: EnvState, lc: LaneChangeParams, request: jax.Array | None = None
+    ) -> tuple[EnvState, jax.Array]:
+        """Change lanes after the move (arrivals gone, insertions not yet).
+
+        Args:
+            state: after the move; ``state.lanes`` a `LaneState`.
+            lc: the lane-change parameters (scalars or (M,)).
+            request: int (M,) a lane index TraCI asks for (-1: none), or None.
+
+        Returns:
+            (state, direction): the state on its new paths, and int (M,)
+            -1 / 0 / +1 each slot changed right, not, left.
+        """
+        lanes: LaneState = state.lanes
+        active = state.active
+        memory = jax.tree.map(
+            lambda x, z: jnp.where(active.reshape(-1, *([1] * (x.ndim - 1))), x, z),
+            prepare_step(lanes.memory), Memory.zeros(active.shape[0]),
+        )  # fmt: skip
+        driver = jax.tree.map(
+            lambda h, a: jnp.where(state.is_av, a, h), self.hv, self.av
+        )
+        veh = ring_changer.RingVehicles(
+            path=state.route, pos=state.pos, speed=state.speed, accel=state.accel,
+            active=active, driver=driver, speed_factor=state.speed_factor,
+            lane_request=request,
+        )  # fmt: skip
+        if self.in_rounds:
+            result, memory, _ = ring_rounds.change_lanes(
+                self.arrays, veh, memory, lc, self.dt
+            )
+        else:
+            result, memory = ring_changer.change_lanes(
+                self.arrays, veh, memory, lc, self.dt
+            )
+        changed = active & (result.direction != 0)
+        n = lanes.changes.shape[0]
+        vid = jnp.where(changed, state.vid, n)  # out of range: dropped
+        seconds = lanes.lane_seconds.at[result.lane].add(
+            jnp.where(active, self.dt, 0.0)
+        )
+        state = state.replace(
+            route=jnp.where(active, result.path, state.route),
+            pos=jnp.where(active, result.pos, state.pos),
+            lanes=LaneState(memory, lanes.changes.at[vid].add(1, mode="drop"), seconds),
+        )
+        return state, jnp.where(active, result.direction, 0)
