@@ -54,6 +54,9 @@ class SumoRun:
     conflict_types: dict[str, int] | None = None
     #: lane changes of all vehicles (SUMO's --lanechange-output; 0 on one lane)
     lane_changes: int = 0
+    #: vehicle-seconds on each normal lane, ``{lane id: s}`` (SUMO's
+    #: --lanedata-output ``sampledSeconds``); None on one-lane roads
+    lane_seconds: dict[str, float] | None = None
 
 
 def run_schedule(
@@ -90,6 +93,9 @@ def run_schedule(
         args = sumo_arguments(files.sumocfg, tripinfo, stats)
         args += cfg.safety.sumo_options(str(ssm))
         args += ["--lanechange-output", str(lane_changes)]
+        lane_data = None if cfg.network.single_lane else out / "lanedata.xml"
+        if lane_data is not None:
+            args += ["--lanedata-output", str(lane_data)]
         libsumo.start(args)
         try:
             started = time.perf_counter()
@@ -107,6 +113,7 @@ def run_schedule(
         )
         collisions, emergency, teleports = _read_statistics(stats)
         n_changes = sum(1 for _ in ET.parse(lane_changes).getroot().iter("change"))
+        lane_seconds = None if lane_data is None else read_lane_seconds(lane_data)
     return SumoRun(
         records=records,
         collisions=collisions,
@@ -117,7 +124,20 @@ def run_schedule(
         queues=queues,
         conflict_types=conflicts.by_type,
         lane_changes=n_changes,
+        lane_seconds=lane_seconds,
     )
+
+
+def read_lane_seconds(path: Path) -> dict[str, float]:
+    """``sampledSeconds`` of every lane in SUMO's lane data, summed over its
+    intervals."""
+    seconds: dict[str, float] = {}
+    for lane in ET.parse(path).getroot().iter("lane"):
+        lane_id = lane.get("id", "")
+        seconds[lane_id] = seconds.get(lane_id, 0.0) + float(
+            lane.get("sampledSeconds", 0.0)
+        )
+    return seconds
 
 
 def sumo_arguments(sumocfg: Path, tripinfo: Path, stats: Path) -> list[str]:

@@ -27,6 +27,7 @@ import numpy as np
 from jaxround.analysis.metrics import arrived_in_all, class_metrics, mean_over_runs
 from jaxround.analysis.saturation import saturation_report
 from jaxround.apps.drivers import (
+    UNCONTROLLED,
     DriverSpec,
     config_for,
     jax_driver,
@@ -37,8 +38,9 @@ from jaxround.core.capacity import road_capacity
 from jaxround.envs.rollout import run_until_left, vehicle_records
 from jaxround.envs.roundabout import RoundaboutEnv, make
 from jaxround.envs.slots import redo_on_overflow
-from jaxround.envs.supported import check_single_lane
+from jaxround.envs.supported import check_jax_lanes, check_single_lane
 from jaxround.scenario.config import ScenarioConfig
+from jaxround.scenario.edges import ring_edge
 from jaxround.scenario.schedule import make_schedule
 
 COMPARED = (
@@ -96,9 +98,15 @@ def run_jax(
     out = []
     for i in range(len(seeds)):
         state = jax.tree.map(lambda x, i=i: x[i], states)
+        lanes = state.lanes
         out.append(
             {
                 "records": vehicle_records(env, state),
+                "collisions": int(state.stats.collisions),
+                "lane_changes": 0 if lanes is None else int(np.sum(lanes.changes)),
+                "lane_seconds": None
+                if lanes is None
+                else dict(zip(env.network.lane_ids, lanes.lane_seconds.tolist())),
                 "overflow": int(state.stats.overflow),
                 "end_s": float(state.step) * env.dt,
                 "max_vehicles": env.max_vehicles,
@@ -164,8 +172,10 @@ def parity_report(
     from jaxround.scenario.config import DRAIN_S
     from sumo_export.runner import run_many
 
-    check_single_lane(cfg)  # before SUMO runs: the JAX side would refuse it
+    check_jax_lanes(cfg)  # before SUMO runs: the JAX side would refuse it
     driver = parse_driver(controller)
+    if driver.kind != UNCONTROLLED:
+        check_single_lane(cfg, f"parity with the AV controller {driver.spec!r}")
     cfg = cfg.with_overrides(penetration=penetration)
     drain_s = DRAIN_S if drain_s is None else drain_s
     cap_s = cfg.demand.duration_s + drain_s
@@ -232,9 +242,60 @@ def parity_report(
         "max_vehicles": jax_runs[0]["max_vehicles"],
         "max_vehicles_tried": jax_runs[0]["max_vehicles_tried"],
         "jax_slot_overflow": int(sum(r["overflow"] for r in jax_runs)),
+        "jax_collisions": int(sum(r["collisions"] for r in jax_runs)),
         "sumo_collisions": int(sum(r.collisions for r in sumo_runs)),
         "sumo_teleports": int(sum(r.teleports for r in sumo_runs)),
         "sumo_conflict_types": conflict_types(sumo_runs),
+        **({} if cfg.network.single_lane else lane_comparison(
+            cfg, schedules, jax_runs, sumo_runs
+        )),
+    }  # fmt: skip
+
+
+def lane_figures(
+    cfg: ScenarioConfig, n_vehicles: int, changes: int, seconds: list[dict[str, float]]
+) -> dict[str, float | None]:
+    """Lane changes per vehicle, and the inner ring lane's share of the time
+    vehicles spent on the ring's lanes (normal ring edges, as SUMO's lane
+    data counts them), over the runs of one simulator."""
+    outer = inner = 0.0
+    for run in seconds:
+        for leg in range(cfg.n_legs):
+            outer += run.get(f"{ring_edge(leg)}_0", 0.0)
+            inner += run.get(f"{ring_edge(leg)}_1", 0.0)
+    return {
+        "lane_changes_per_veh": changes / max(n_vehicles, 1),
+        "inner_ring_share": inner / (inner + outer) if inner + outer > 0 else None,
+    }
+
+
+def lane_comparison(
+    cfg: ScenarioConfig,
+    schedules: Sequence[Any],
+    jax_runs: Sequence[dict[str, Any]],
+    sumo_runs: Sequence[Any],
+) -> dict[str, Any]:
+    """`parity_report`'s figures of a roundabout with two-lane roads: both
+    simulators' `lane_figures`, the relative error of the lane changes per
+    vehicle and the difference of the inner ring lane's share (points)."""
+    n = sum(s.n_vehicles for s in schedules)
+    jax_lanes = lane_figures(
+        cfg, n, sum(r["lane_changes"] for r in jax_runs),
+        [r["lane_seconds"] or {} for r in jax_runs],
+    )  # fmt: skip
+    sumo_lanes = lane_figures(
+        cfg, n, sum(r.lane_changes for r in sumo_runs),
+        [r.lane_seconds or {} for r in sumo_runs],
+    )  # fmt: skip
+    share = (jax_lanes["inner_ring_share"], sumo_lanes["inner_ring_share"])
+    return {
+        "lanes": {"jax": jax_lanes, "sumo": sumo_lanes},
+        "lane_changes_rel_err": relative_error(
+            jax_lanes["lane_changes_per_veh"], sumo_lanes["lane_changes_per_veh"]
+        ),
+        "inner_ring_share_diff_points": None
+        if None in share
+        else 100.0 * abs(share[0] - share[1]),
     }
 
 

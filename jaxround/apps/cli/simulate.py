@@ -120,6 +120,26 @@ def cmd_parity(args: argparse.Namespace) -> None:
         err = report["rel_err"][key]
         shown = "-" if err is None else f"{100 * err:.2f}%"
         print(f"| {label} | {j:.2f} | {s_:.2f} | {shown} |")
+    if "lanes" in report:  # two-lane roads
+        lanes = report["lanes"]
+        err = report["lane_changes_rel_err"]
+        changes = [lanes[sim]["lane_changes_per_veh"] for sim in ("jax", "sumo")]
+        print(
+            f"| lane changes per vehicle | {changes[0]:.3f} | {changes[1]:.3f} | "
+            + ("-" if err is None else f"{100 * err:.2f}%")
+            + " |"
+        )
+        shares = [lanes[sim]["inner_ring_share"] for sim in ("jax", "sumo")]
+        if None not in shares:
+            print(
+                f"| inner ring lane's share of ring time | {100 * shares[0]:.1f}% | "
+                f"{100 * shares[1]:.1f}% | "
+                f"{report['inner_ring_share_diff_points']:.1f} points |"
+            )
+    print(
+        f"\ncollisions: JAX {report['jax_collisions']}, SUMO "
+        f"{report['sumo_collisions']}; SUMO teleports {report['sumo_teleports']}"
+    )
     print(
         f"\nper-vehicle crossing time: median |error| "
         f"{report['per_vehicle_median_abs_err_s']:.2f} s, "
