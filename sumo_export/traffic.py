@@ -34,6 +34,7 @@ from jaxround.core.state import EnvState
 from jaxround.envs.observe import OBSERVATION_SIZES
 from jaxround.envs.roundabout import RoundaboutEnv, make
 from jaxround.envs.slots import ROAD
+from jaxround.envs.supported import check_single_lane
 from jaxround.scenario.config import ScenarioConfig
 from jaxround.scenario.schedule import Schedule
 from sumo_export.scenario import vehicle_id
@@ -99,6 +100,7 @@ class SumoObserver:
         max_slots: int | str | None = DEFAULT_SLOTS,
         strict: bool = False,
     ) -> None:
+        check_single_lane(cfg, "an AV policy or scripted AV controller in SUMO")
         if observer not in OBSERVATION_SIZES:
             raise ValueError(
                 f"observer {observer!r}, expected one of {sorted(OBSERVATION_SIZES)}"

@@ -30,6 +30,7 @@ from agents.common import networks
 from jaxround.core.params import EnvParams
 from jaxround.core.state import EnvState
 from jaxround.envs.roundabout import make
+from jaxround.envs.supported import check_single_lane
 from jaxround.envs.wrappers import auto_reset
 from jaxround.scenario.config import ConfigError
 
@@ -146,6 +147,7 @@ class BatchTrainer:
         self.config = config
         self.sharding = batch_sharding(config.n_envs)
         self.scenario = config.training_scenario()
+        check_single_lane(self.scenario, "training")
         self.env, params = make(
             self.scenario, max_vehicles=config.max_vehicles, episode_s=config.episode_s
         )

@@ -317,7 +317,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if (out / "headroom.json").exists():
         parser.error(f"--out: {out / 'headroom.json'} exists; choose another folder")
     cfg = load_config(args.config)
-    check_single_lane(cfg)  # before SUMO runs: the JAX side would refuse it
+    check_single_lane(cfg, "headroom")  # before SUMO runs: AV settings
     rows = variants()
     sumo = run_sumo(cfg, rows, args.seeds, args.workers)
     jax_runs = run_jax(cfg, rows, args.seeds)

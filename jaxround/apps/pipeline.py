@@ -284,9 +284,11 @@ def main_job(
     """
     from agents.common.compilation import enable_compilation_cache
     from agents.run import clear_run, train_to_dir
+    from jaxround.envs.supported import check_single_lane
     from jaxround.scenario.schedule import make_schedule
     from sumo_export.scenario import write_scenario
 
+    check_single_lane(cfg, "the main job (it trains and evaluates a policy)")
     started = time.time()
     write_scenario(cfg, make_schedule(cfg), out / "scenario")
     say(f"[1/4] scenario files in {out / 'scenario'}")

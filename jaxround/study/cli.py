@@ -43,6 +43,7 @@ def _seconds(text: str) -> float:
 
 def cmd_serve(args: argparse.Namespace) -> None:
     from agents.common.export import check_scenario, load_policy
+    from jaxround.envs.supported import check_single_lane
     from jaxround.scenario.config import load_config
     from jaxround.study.storage import StudyDatabase
     from sumo_export.controller import policy_observer
@@ -65,6 +66,7 @@ def cmd_serve(args: argparse.Namespace) -> None:
     )
     cfg = load_config(settings.config)
     try:
+        check_single_lane(cfg, "the study (its AVs drive a policy)")
         settings.validate(cfg)
         _, layout = load_policy(settings.policy)
         policy_observer(settings.policy)

@@ -89,7 +89,9 @@ def cmd_search(args: argparse.Namespace) -> None:
         summary,
         sumo_recheck,
     )
+    from jaxround.envs.supported import check_single_lane
 
+    check_single_lane(load_config(args.config), "the search of constant AV settings")
     if args.origin_share is not None:
         n_legs = load_config(args.config).n_legs
         if len(args.origin_share) != n_legs:

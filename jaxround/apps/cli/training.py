@@ -27,8 +27,10 @@ def cmd_run(args: argparse.Namespace) -> None:
     from agents.common.config import PPOConfig, load_trainer_config_and_choice
     from agents.common.device_batch import CPU_N_ENVS
     from jaxround.apps.pipeline import TRAIN_DIR, headline, main_job
+    from jaxround.envs.supported import check_single_lane
 
     cfg = load_config(args.config)
+    check_single_lane(cfg, "the main job (it trains and evaluates a policy)")
     constant = best_constant_of(args.best_constant, cfg)
     train_cfg, choice = load_trainer_config_and_choice(PPOConfig, args.train_config)
     if args.quick:  # as many updates as a CPU's quick run, whatever the batch
