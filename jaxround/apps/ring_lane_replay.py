@@ -33,29 +33,19 @@ from tqdm import tqdm
 
 from jaxround.analysis.report import markdown_table
 from jaxround.apps.ring_lane_record import StepRecord, record_sumo, scripted_policy
+from jaxround.envs.lane_changes import MAX_SPEED_FACTOR, driver_numbers
 from jaxround.lanes import actions as lca
 from jaxround.lanes import ring_changer, ring_rounds
 from jaxround.lanes.best_lanes import LookAheadDriver
-from jaxround.lanes.follow import Driver
 from jaxround.lanes.memory import prepare_step
 from jaxround.lanes.params import LaneChangeParams
 from jaxround.lanes.ring_tables import RingLanes, ring_lanes
 from jaxround.lanes.views import Memory
-from jaxround.scenario.config import DriverConfig, ScenarioConfig, load_config
+from jaxround.scenario.config import ScenarioConfig, load_config
 from jaxround.scenario.schedule import make_schedule
 from jaxround.sumo_files.netconvert import network_file
 
-#: SUMO's `MSVehicleControl::getMaxSpeedFactor` with its default vType loaded
-#: (speedFactor normc(1, 0.1, 0.2, 2)): the followers' search distance.
-MAX_SPEED_FACTOR = 2.0
-
-
 _CHANGE = jax.jit(ring_rounds.change_lanes, static_argnums=4)
-
-
-def _driver(d: DriverConfig) -> Driver:
-    return Driver(d.accel, d.decel, d.emergency_decel, d.tau, d.min_gap, d.length,
-                  d.delta, d.max_speed)  # fmt: skip
 
 
 @dataclass
@@ -102,7 +92,10 @@ class SlotBook:
             return out
 
         is_av = spread(rec.is_av, False)
-        hv, av = _driver(self.cfg.drivers.hv), _driver(self.cfg.drivers.av)
+        hv, av = (
+            driver_numbers(self.cfg.drivers.hv),
+            driver_numbers(self.cfg.drivers.av),
+        )
         driver = jax.tree.map(lambda h, a: jnp.where(is_av, a, h), hv, av)
         veh = ring_changer.RingVehicles(
             path=jnp.asarray(spread(rec.path, 0)), pos=jnp.asarray(spread(rec.pos)),
