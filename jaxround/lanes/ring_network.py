@@ -23,7 +23,9 @@ entry whose through lane that is, and the entry test
 registrations too.
 
 A one-lane roundabout compiles to the arrays of
-`jaxround.sumo_files.compile.compile_network`, path for route.
+`jaxround.sumo_files.compile.compile_network`, path for route and lane for
+lane (the lanes numbered in another order); `make` still uses that one
+there.
 """
 
 from __future__ import annotations
