@@ -33,13 +33,12 @@ from tqdm import tqdm
 
 from jaxround.analysis.report import markdown_table
 from jaxround.apps.ring_lane_record import StepRecord, record_sumo, scripted_policy
-from jaxround.envs.lane_changes import MAX_SPEED_FACTOR, driver_numbers
+from jaxround.envs.lane_changes import changer_arrays, changer_tables, driver_numbers
 from jaxround.lanes import actions as lca
 from jaxround.lanes import ring_changer, ring_rounds
-from jaxround.lanes.best_lanes import LookAheadDriver
 from jaxround.lanes.memory import prepare_step
 from jaxround.lanes.params import LaneChangeParams
-from jaxround.lanes.ring_tables import RingLanes, ring_lanes
+from jaxround.lanes.ring_tables import RingLanes
 from jaxround.lanes.views import Memory
 from jaxround.scenario.config import ScenarioConfig, load_config
 from jaxround.scenario.schedule import make_schedule
@@ -109,14 +108,12 @@ class SlotBook:
 
 def tables_for(cfg: ScenarioConfig) -> RingLanes:
     """The changer's tables of a config's network, for its human drivers."""
-    driver = LookAheadDriver.from_config(cfg.drivers.hv, cfg.simulation.dt_s)
-    return ring_lanes(network_file(cfg), driver)
+    return changer_tables(cfg, network_file(cfg))
 
 
 def arrays(cfg: ScenarioConfig, tables: RingLanes) -> ring_changer.RingArrays:
     """The changer's network arrays for a config's vTypes."""
-    min_decel = min(cfg.drivers.hv.decel, cfg.drivers.av.decel, 4.5)
-    return ring_changer.RingArrays.from_tables(tables, MAX_SPEED_FACTOR, min_decel)
+    return changer_arrays(cfg, tables)
 
 
 def replay(

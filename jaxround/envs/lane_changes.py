@@ -30,7 +30,7 @@ from jaxround.lanes.follow import Driver
 from jaxround.lanes.memory import patch_speed, prepare_step
 from jaxround.lanes.params import LaneChangeParams
 from jaxround.lanes.ring_network import compile_lane_network
-from jaxround.lanes.ring_tables import ring_lanes
+from jaxround.lanes.ring_tables import RingLanes, ring_lanes
 from jaxround.lanes.views import Memory
 from jaxround.scenario.config import DriverConfig, ScenarioConfig
 from jaxround.sumo_files.compile import compile_network
@@ -69,6 +69,20 @@ def driver_numbers(d: DriverConfig) -> Driver:
                   d.delta, d.max_speed)  # fmt: skip
 
 
+def changer_tables(cfg: ScenarioConfig, net_file: str | Path) -> RingLanes:
+    """The changer's tables of a scenario's network (`ring_tables`), with
+    the human drivers' look-ahead."""
+    driver = LookAheadDriver.from_config(cfg.drivers.hv, cfg.simulation.dt_s)
+    return ring_lanes(net_file, driver)
+
+
+def changer_arrays(cfg: ScenarioConfig, tables: RingLanes) -> ring_changer.RingArrays:
+    """The changer's arrays for a scenario's vTypes (SUMO's followers'
+    search: the fastest speed factor, the smallest of the decelerations)."""
+    min_decel = min(cfg.drivers.hv.decel, cfg.drivers.av.decel, 4.5)
+    return ring_changer.RingArrays.from_tables(tables, MAX_SPEED_FACTOR, min_decel)
+
+
 def compiled_network(
     cfg: ScenarioConfig, net_file: str | Path
 ) -> tuple[CompiledNetwork, LaneChanger | None]:
@@ -93,15 +107,10 @@ class LaneChanger:
     def __init__(
         self, cfg: ScenarioConfig, net_file: str | Path, in_rounds: bool | None = None
     ) -> None:
-        dt = cfg.simulation.dt_s
-        hv, av = cfg.drivers.hv, cfg.drivers.av
-        tables = ring_lanes(net_file, LookAheadDriver.from_config(hv, dt))
-        min_decel = min(hv.decel, av.decel, 4.5)
-        self.arrays = ring_changer.RingArrays.from_tables(
-            tables, MAX_SPEED_FACTOR, min_decel
-        )
-        self.hv, self.av = driver_numbers(hv), driver_numbers(av)
-        self.dt = dt
+        self.arrays = changer_arrays(cfg, changer_tables(cfg, net_file))
+        self.hv = driver_numbers(cfg.drivers.hv)
+        self.av = driver_numbers(cfg.drivers.av)
+        self.dt = cfg.simulation.dt_s
         if in_rounds is None:
             in_rounds = jax.default_backend() != "cpu"
         self.in_rounds = in_rounds

@@ -38,10 +38,7 @@ import sumolib
 from jaxround.core.network import CompiledNetwork, NetworkError
 from jaxround.lanes.paths import LanePaths, lane_paths
 from jaxround.scenario.edges import in_edge, ring_edge
-from jaxround.sumo_files.compile import internal_geometry
-
-#: SUMO's foe visibility distance where a connection gives none (m).
-DEFAULT_VISIBILITY_M = 4.5
+from jaxround.sumo_files.compile import connection_visibility, internal_geometry
 
 
 def compile_lane_network(
@@ -151,7 +148,9 @@ def _entries(
                 raise NetworkError(
                     f"{net_file}: the entry from {ln.getID()} merges with no ring lane"
                 )
-            visibility = _visibility(net_file, ln.getID())
+            visibility = connection_visibility(
+                net_file, in_edge(leg), ring, ln.getIndex()
+            )
             entry = (index[ln.getID()], internal, int(partner[internal]), visibility)
             found.append((ln.getIndex() * paths.n_legs + leg, entry))
     return [entry for _, entry in sorted(found)]
@@ -176,21 +175,6 @@ def _crossings(
         if foes:
             crossing[g] = through_of[foes[0]]
     return crossing
-
-
-def _visibility(net_file: str | Path, from_lane: str) -> float:
-    """The foe visibility of the connection leaving `from_lane` for the ring."""
-    import xml.etree.ElementTree as ET
-
-    edge, _, lane = from_lane.rpartition("_")
-    for conn in ET.parse(net_file).getroot().iter("connection"):
-        if (
-            conn.get("from") == edge
-            and conn.get("fromLane") == lane
-            and conn.get("via")
-        ):
-            return float(conn.get("visibility", DEFAULT_VISIBILITY_M))
-    return DEFAULT_VISIBILITY_M
 
 
 def _depart_paths(net_file: str | Path, paths: LanePaths) -> np.ndarray:

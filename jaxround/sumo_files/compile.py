@@ -105,7 +105,7 @@ def compile_network(net_file: str | Path, n_legs: int | None = None) -> Compiled
         prev = ring_edge((i - 1) % n_legs)
         through, _ = via_lane(prev, ring_edge(i))
         ring_through.append(index[through.getID()])
-        visibility.append(_visibility(path, in_edge(i), ring_edge(i)))
+        visibility.append(connection_visibility(path, in_edge(i), ring_edge(i)))
 
     n_lanes = len(lane_ids)
     lanes = [net.getLane(lid) for lid in lane_ids]
@@ -260,10 +260,14 @@ def _dist_to_divergence(
     return r * length / g_l
 
 
-def _visibility(path: Path, from_edge: str, to_edge: str) -> float:
-    """Foe visibility distance of a connection (SUMO's default is 4.5 m)."""
+def connection_visibility(
+    path: str | Path, from_edge: str, to_edge: str, from_lane: int | None = None
+) -> float:
+    """Foe visibility distance of a connection (SUMO's default is 4.5 m);
+    of the one leaving lane `from_lane` where given."""
     for conn in ET.parse(path).getroot().iter("connection"):
-        if conn.get("from") == from_edge and conn.get("to") == to_edge:
+        lane_ok = from_lane is None or conn.get("fromLane") == str(from_lane)
+        if conn.get("from") == from_edge and conn.get("to") == to_edge and lane_ok:
             return float(conn.get("visibility", 4.5))
     raise NetworkError(f"{path}: no connection {from_edge} -> {to_edge}")
 
