@@ -108,6 +108,15 @@ SLOW_FILES = (
 )
 
 
+def refused(main: Any, argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
+    """A command's ``main(argv)`` that argparse refuses (exit status 2),
+    and what it printed to stderr."""
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    assert stop.value.code == 2
+    return capsys.readouterr().err
+
+
 def pytest_collection_modifyitems(
     session: pytest.Session, config: pytest.Config, items: list[pytest.Item]
 ) -> None:

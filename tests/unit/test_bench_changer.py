@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from jaxround.apps.bench import changer
+from tests.conftest import refused
 
 
 @pytest.mark.parametrize(
@@ -22,10 +23,7 @@ from jaxround.apps.bench import changer
 def test_bad_arguments_are_refused_before_work(
     argv: list[str], named: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    with pytest.raises(SystemExit) as stop:
-        changer.main(argv)
-    assert stop.value.code == 2
-    assert named in capsys.readouterr().err
+    assert named in refused(changer.main, argv, capsys)
 
 
 def test_an_existing_json_is_not_overwritten(

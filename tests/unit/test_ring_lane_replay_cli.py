@@ -6,6 +6,7 @@ from __future__ import annotations
 import pytest
 
 from jaxround.apps import ring_lane_replay
+from tests.conftest import refused
 
 
 @pytest.mark.parametrize(
@@ -21,7 +22,4 @@ from jaxround.apps import ring_lane_replay
 def test_bad_arguments_are_refused_before_work(
     argv: list[str], named: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    with pytest.raises(SystemExit) as stop:
-        ring_lane_replay.main(argv)
-    assert stop.value.code == 2
-    assert named in capsys.readouterr().err
+    assert named in refused(ring_lane_replay.main, argv, capsys)
