@@ -13,14 +13,16 @@ from __future__ import annotations
 import tempfile
 import xml.etree.ElementTree as ET
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from tqdm import tqdm
 
-from jaxround.lanes.paths import LEFT, RIGHT, LanePaths
+from jaxround.lanes.paths import LanePaths
+from jaxround.lanes.traci import REQUEST_STEPS
+from jaxround.lanes.tracking import PathTracker
 from jaxround.scenario.config import ScenarioConfig
 from jaxround.scenario.schedule import Schedule
 
@@ -44,40 +46,6 @@ class StepRecord:
     is_av: np.ndarray
     new: np.ndarray
     request: np.ndarray
-
-
-@dataclass
-class PathTracker:
-    """Follows SUMO's vehicles along the lane paths (see the module doc)."""
-
-    paths: LanePaths
-    state: dict[str, int] = field(default_factory=dict)  # id -> path
-
-    def __post_init__(self) -> None:
-        self.index = {lid: k for k, lid in enumerate(self.paths.lane_ids)}
-        self.edge = [lid.rsplit("_", 1)[0] for lid in self.paths.lane_ids]
-
-    def step(self, vid: str, lane_id: str, route: int) -> tuple[int, int, int]:
-        """(path before the step's change, path after, change -1/0/+1)."""
-        lane = self.index[lane_id]
-        if vid not in self.state:
-            path = int(self.paths.depart_path[route, self.paths.lane_index[lane]])
-            self.state[vid] = path
-            return path, path, 0
-        path = self.state[vid]
-        on_path = next(
-            int(x) for x in self.paths.path_lanes[path]
-            if x >= 0 and self.edge[x] == self.edge[lane]
-        )  # fmt: skip
-        if on_path == lane:
-            return path, path, 0
-        side = LEFT if self.paths.lane_left[on_path] == lane else RIGHT
-        k = int(np.nonzero(self.paths.path_lanes[path] == on_path)[0][0])
-        new = int(self.paths.change_path[path, k, side])
-        if new < 0 or self.paths.path_lanes[new, k] != lane:
-            raise ValueError(f"{vid}: a change to {lane_id} the paths do not allow")
-        self.state[vid] = new
-        return path, new, 1 if side == LEFT else -1
 
 
 #: What a scripted lane policy gives before a step: lane indices by vehicle.
@@ -141,7 +109,8 @@ def record_sumo(
     Args:
         lane_policy: called before every step with libsumo's ``vehicle``
             module and the vehicles on the network; each lane index it
-            returns is sent as ``changeLane(id, index, step length)``
+            returns is sent as ``changeLane(id, index, duration)`` for
+            this step only (`jaxround.lanes.traci.REQUEST_STEPS`)
             (lane-change mode left at SUMO's default, 1621).
 
     Returns the steps and SUMO's reason for each change, by (time, id).
@@ -169,7 +138,7 @@ def record_sumo(
             for _ in tqdm(range(int(round(duration_s / dt))), desc="SUMO", leave=False):
                 asked = lane_policy(vehicle, ids) if lane_policy else {}
                 for vid, index in asked.items():
-                    vehicle.changeLane(vid, index, dt)
+                    vehicle.changeLane(vid, index, REQUEST_STEPS * dt)
                 libsumo.simulationStep()
                 ids = list(vehicle.getIDList())
                 new = np.array([vid not in tracker.state for vid in ids], bool)

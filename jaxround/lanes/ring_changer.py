@@ -271,7 +271,8 @@ def turn(ctx: Context, i: jax.Array, view: View, memory: Memory) -> Outcome:
         )
     decision, kept, told = turn_of(
         i, memory, state_me, advices_me, curr=curr, best=best, leader=leader,
-        right=sides[0], left=sides[1], lc=lc_i, dt=dt, request=request, request_s=dt,
+        right=sides[0], left=sides[1], lc=lc_i, dt=dt, request=request,
+        request_s=traci.REQUEST_STEPS * dt,
     )  # fmt: skip
     # no changer on its edge (one lane, or changing not allowed): SUMO
     # registers it unchanged without asking the model

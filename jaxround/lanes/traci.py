@@ -5,13 +5,17 @@ it against LC2013's own wishes under the default lane-change mode 1621.
 index i is active, it asks to go RIGHT, LEFT or HOLD by the lane the
 vehicle is on (nothing where i is not a lane of its edge). Mode 1621
 (`setLaneChangeMode`: strategic, cooperative, speed gain and keep right
-`LC_NOCONFLICT`, TraCI priority `LCP_OPPORTUNISTIC`) cancels a model wish
-that conflicts with the request (its direction or STAY, and its urgency),
-adds the request (`LCA_TRACI` and the direction, never urgent) and keeps
-the blocked bits: the change happens only where SUMO's safety checks allow
-it. Where SUMO asks (three places per look) is docs/lc2013-map.md
-section 13; `jaxround.lanes.lc2013.wants_change` and
-`jaxround.lanes.decide.turn_of` ask there.
+`LC_NOCONFLICT`, TraCI priority ``(1621 >> 8) & 3`` = 2, `LCP_URGENT`:
+"change if not blocked, adapt own speed and speed of blockers") cancels a
+model wish that conflicts with the request (its direction or STAY, and its
+urgency), adds the request (`LCA_TRACI` and the direction, `LCA_URGENT`
+too unless it is HOLD: SUMO's lane-change output reads ``traci|urgent``)
+and keeps the blocked bits: the change happens only where SUMO's safety
+checks allow it, and a blocked one negotiates as an urgent strategic
+change does (LC2013's urgent branch, with the request's remaining time).
+Where SUMO asks (three places per look) is docs/lc2013-map.md section 13;
+`jaxround.lanes.lc2013.wants_change` and `jaxround.lanes.decide.turn_of`
+ask there.
 
 Everything is element-wise over arrays of one shape (...).
 """
@@ -27,6 +31,13 @@ from jaxround.lanes import actions as lca
 NONE, RIGHT, LEFT, HOLD = 0, -1, 1, 2
 #: No lane requested (a vehicle's ``lane_request``).
 NO_LANE = -1
+#: How long a request is sent for, in steps: ``changeLane(id, i, 0.5 dt)``
+#: after step t is weighed in step t + 1's lane-change phase (remaining
+#: 0.5 dt, LC2013's time to negotiate an urgent change) and gone by the
+#: next. (A request for a whole dt would still hold, with 0 s remaining,
+#: in the phase after: ``influenceChangeDecision`` drops a request only
+#: once the time is past its end.)
+REQUEST_STEPS = 0.5
 
 
 def change_request(
@@ -66,7 +77,9 @@ def influence(state: jax.Array, request: jax.Array) -> jax.Array:
     way = jnp.where(
         request == LEFT, lca.LEFT, jnp.where(request == RIGHT, lca.RIGHT, lca.STAY)
     )
-    return jnp.where(active, cancelled | lca.TRACI | way, state).astype(jnp.int32)
+    urgent = jnp.where(request == HOLD, 0, lca.URGENT)  # not LCP_OPPORTUNISTIC
+    asked = cancelled | lca.TRACI | way | urgent
+    return jnp.where(active, asked, state).astype(jnp.int32)
 
 
 def cancels(state: jax.Array, request: jax.Array) -> jax.Array:

@@ -28,41 +28,48 @@ def test_no_request_changes_nothing(state: int) -> None:
 def test_a_conflicting_wish_loses_its_direction_and_urgency() -> None:
     wish = lca.RIGHT | lca.STRATEGIC | lca.URGENT | lca.AMBLOCKINGLEADER
     assert influenced(wish, traci.LEFT) == (
-        lca.STRATEGIC | lca.AMBLOCKINGLEADER | lca.TRACI | lca.LEFT
+        lca.STRATEGIC | lca.AMBLOCKINGLEADER | lca.TRACI | lca.LEFT | lca.URGENT
     )
     assert influenced(lca.STAY | lca.STRATEGIC, traci.RIGHT) == (
-        lca.STRATEGIC | lca.TRACI | lca.RIGHT
+        lca.STRATEGIC | lca.TRACI | lca.RIGHT | lca.URGENT
     )
     assert influenced(lca.LEFT | lca.COOPERATIVE, traci.HOLD) == (
         lca.COOPERATIVE | lca.TRACI | lca.STAY
     )
 
 
-def test_an_agreeing_wish_stays_and_the_request_is_never_urgent() -> None:
+def test_an_agreeing_wish_stays_and_a_change_request_is_urgent() -> None:
+    """Mode 1621's TraCI priority is LCP_URGENT (2): a request to change is
+    urgent (SUMO's lane-change output reads ``traci|urgent``), HOLD is not."""
     assert influenced(lca.LEFT | lca.COOPERATIVE, traci.LEFT) == (
-        lca.LEFT | lca.COOPERATIVE | lca.TRACI
+        lca.LEFT | lca.COOPERATIVE | lca.TRACI | lca.URGENT
     )
     assert influenced(lca.LEFT | lca.STRATEGIC | lca.URGENT, traci.LEFT) == (
         lca.LEFT | lca.STRATEGIC | lca.URGENT | lca.TRACI
     )
-    assert influenced(0, traci.RIGHT) & lca.URGENT == 0
+    assert influenced(0, traci.RIGHT) & lca.URGENT
+    assert influenced(0, traci.HOLD) == lca.TRACI | lca.STAY
 
 
 def test_safety_checks_are_kept() -> None:
-    """LCP_OPPORTUNISTIC: the blocked bits stay, so a blocked request waits."""
-    assert influenced(BLOCKED, traci.LEFT) == BLOCKED | lca.TRACI | lca.LEFT
+    """LCP_URGENT: the blocked bits stay, so a blocked request waits."""
+    assert influenced(BLOCKED, traci.LEFT) == (
+        BLOCKED | lca.TRACI | lca.LEFT | lca.URGENT
+    )
 
 
 def test_a_wish_that_only_repeats_a_request_is_renewed() -> None:
     state = lca.TRACI | lca.LEFT | lca.URGENT
-    assert influenced(state, traci.LEFT) == lca.TRACI | lca.LEFT
+    assert influenced(state, traci.LEFT) == state
+    assert influenced(lca.TRACI | lca.LEFT, traci.HOLD) == lca.TRACI | lca.STAY
 
 
 def test_cancel_request_drops_any_wish_the_request_alters() -> None:
     assert bool(traci.cancels(jnp.int32(lca.LEFT | lca.SPEEDGAIN), traci.LEFT))
-    assert not bool(
-        traci.cancels(jnp.int32(lca.TRACI | lca.LEFT | lca.SPEEDGAIN), traci.LEFT)
-    )
+    agreeing = lca.TRACI | lca.LEFT | lca.URGENT | lca.SPEEDGAIN
+    assert not bool(traci.cancels(jnp.int32(agreeing), traci.LEFT))
+    # the request adds its urgency: SUMO's cancelRequest sees a changed state
+    assert bool(traci.cancels(jnp.int32(agreeing & ~lca.URGENT), traci.LEFT))
     assert not bool(traci.cancels(jnp.int32(lca.LEFT | lca.SPEEDGAIN), traci.NONE))
 
 
