@@ -19,9 +19,14 @@ After every SUMO step the controller
    ``setSpeed`` says what `commanded_speed` computes. A command holds until
    released with ``setSpeed(-1)``.)
 
-The lane-change decision acts only where the AV's road has more than one
-lane (``changeLane`` to a neighbouring lane); every road of the roundabouts
-jaxround compiles has one lane, so there it is a no-op.
+4. sends the action's lane column as ``changeLane(id, index + d, dt / 2)``
+   (> 0.5: the lane to the left, d = 1; < -0.5: to the right, d = -1;
+   between: hold the lane, d = 0; NaN: nothing), only where the AV's edge
+   has two lanes and the one asked for, so on one-lane roads never, under
+   the default lane-change mode 1621: SUMO weighs the request against
+   LC2013's own wishes in its next lane-change phase and changes only
+   where its safety checks allow (`jaxround.envs.lane_view`, which JAX
+   applies the same way).
 """
 
 from __future__ import annotations
@@ -36,6 +41,7 @@ import numpy as np
 
 from jaxround.envs.assertiveness import TAU_RANGE
 from jaxround.envs.observe import OBSERVATION_SIZES
+from jaxround.lanes.traci import REQUEST_STEPS
 from jaxround.scenario.config import ScenarioConfig
 from jaxround.scenario.schedule import Schedule
 from sumo_export.traffic import (
@@ -101,11 +107,12 @@ class PolicyController:
         vehicles from now on (the compiled observers stay)."""
         self.sumo.use_schedule(schedule)
         self.sumo.overflow_vehicle_steps = 0
+        self.sumo.off_path_vehicle_steps = 0
         self._retuned: dict[str, tuple[float, float]] = {}
         self._commanded: set[str] = set()
         self._times: dict[str, list[int]] = {k: [] for k in PHASES}
         self.commands = 0
-        self.lane_changes = 0
+        self.lane_requests = 0
         self.last_obs: np.ndarray | None = None
         self.last_traffic: SumoTraffic | None = None
 
@@ -166,28 +173,42 @@ class PolicyController:
         accel: np.ndarray,
         change: np.ndarray,
     ) -> None:
-        """Command the AVs' speeds (and lane changes where there is a lane).
+        """Command the AVs: speeds (or tau and impatience), and lanes.
 
         Args:
             libsumo: the running simulation.
             traffic: the vehicles as `SumoObserver.read` gave them.
-            accel: float (n,) acceleration per occupied slot, m/s^2 (empty:
-                no commands, only releases).
-            change: (n,) lane-change decision (true or > 0.5: change).
+            accel: float (n,) the action's first column per occupied slot
+                (empty: no commands, only releases).
+            change: float (n,) the lane column (> 0.5 left, < -0.5 right,
+                between: hold, NaN: none).
         """
         if self.action == "assertiveness":
             self.retune(libsumo, traffic, accel)
-            return
+        else:
+            self.command_speeds(libsumo, traffic, accel)
+        self.request_lanes(libsumo, traffic, change)
+
+    def command_speeds(
+        self, libsumo: Any, traffic: SumoTraffic, accel: np.ndarray
+    ) -> None:
+        """``setSpeed(v + a dt)`` for each AV (``setSpeed(-1)`` to release one
+        whose ``a`` is NaN or that lost its slot).
+
+        Args:
+            libsumo: the running simulation.
+            traffic: the vehicles as `SumoObserver.read` gave them.
+            accel: float (n,) acceleration per occupied slot, m/s^2.
+        """
         veh = libsumo.vehicle
         n = len(accel)
         v_cmd = commanded_speed(
             traffic.speed[:n], np.asarray(accel, np.float64), self.av_accel,
             self.av_decel, self.dt,
         ).tolist()  # fmt: skip
-        wants = (np.asarray(change, np.float64) > 0.5).tolist()
         is_av = (traffic.column("is_av")[:n] > 0.5).tolist()
         commanded = set()
-        for vid, av, v, lane_change in zip(traffic.ids, is_av, v_cmd, wants):
+        for vid, av, v in zip(traffic.ids, is_av, v_cmd):
             if not av:
                 continue
             if v != v:  # NaN: no command, the AV drives its vType
@@ -196,14 +217,43 @@ class PolicyController:
                 continue
             veh.setSpeed(vid, v)
             commanded.add(vid)
-            if lane_change:
-                self._change_lane(libsumo, vid)
         # a command holds until released: an AV that lost its slot drives its IDM
         for vid in traffic.unslotted:
             if vid in self._commanded:
                 veh.setSpeed(vid, -1.0)
         self._commanded = commanded
         self.commands += len(commanded)
+
+    def request_lanes(
+        self, libsumo: Any, traffic: SumoTraffic, change: np.ndarray
+    ) -> None:
+        """``changeLane(id, index + d, dt / 2)`` for each AV whose lane column
+        asks for the lane to its left (> 0.5, d = 1), right (< -0.5, d = -1)
+        or to hold its lane (between, d = 0), where its edge has the lane
+        asked for (a hold: where it has two); NaN asks nothing
+        (`jaxround.envs.lane_view`). Lane-change mode 1621 stays: SUMO
+        changes only where LC2013's safety checks allow.
+
+        Args:
+            libsumo: the running simulation.
+            traffic: the vehicles as `SumoObserver.read` gave them.
+            change: float (n,) the lane column per occupied slot.
+        """
+        change = np.asarray(change, np.float64)
+        way = np.where(change > 0.5, 1, np.where(change < -0.5, -1, 0))
+        is_av = traffic.column("is_av")[: len(way)] > 0.5
+        asked = np.nonzero(is_av & ~np.isnan(change))[0].tolist()
+        veh = libsumo.vehicle
+        for slot in asked:
+            vid = traffic.ids[slot]
+            edge = veh.getRoadID(vid)
+            if edge not in self._lanes_of_edge:
+                self._lanes_of_edge[edge] = libsumo.edge.getLaneNumber(edge)
+            n_lanes = self._lanes_of_edge[edge]
+            target = veh.getLaneIndex(vid) + int(way[slot])
+            if n_lanes > 1 and 0 <= target < n_lanes:
+                veh.changeLane(vid, target, REQUEST_STEPS * self.dt)
+                self.lane_requests += 1
 
     def retune(self, libsumo: Any, traffic: SumoTraffic, raw: np.ndarray) -> None:
         """Set each AV's tau and impatience for the next step from its raw
@@ -234,19 +284,6 @@ class PolicyController:
                 set_tau_and_impatience(libsumo, vid, self.av_tau, self.av_impatience)
         self._retuned = retuned
 
-    def _change_lane(self, libsumo: Any, vid: str) -> None:
-        """Move to a neighbouring lane (left if there is one) on a multi-lane road."""
-        veh = libsumo.vehicle
-        edge = veh.getRoadID(vid)
-        if edge not in self._lanes_of_edge:
-            self._lanes_of_edge[edge] = libsumo.edge.getLaneNumber(edge)
-        n_lanes = self._lanes_of_edge[edge]
-        if n_lanes < 2:
-            return
-        k = veh.getLaneIndex(vid)
-        veh.changeLane(vid, k + 1 if k + 1 < n_lanes else k - 1, self.dt)
-        self.lane_changes += 1
-
     # ------------------------------------------------------------------ report
 
     def step_times_ms(self) -> dict[str, np.ndarray]:
@@ -257,13 +294,14 @@ class PolicyController:
 
     def report(self) -> dict[str, Any]:
         """Plain data for `SumoRun.controller_report`: per-step times (lists,
-        ms), slots, slot overflow, AV commands and lane changes."""
+        ms), slots, slot overflow, AV commands and lane requests sent."""
         return {
             "step_ms": {k: v.tolist() for k, v in self.step_times_ms().items()},
             "max_slots": self.sumo.max_slots,
             "overflow_vehicle_steps": self.sumo.overflow_vehicle_steps,
+            "off_path_vehicle_steps": self.sumo.off_path_vehicle_steps,
             "commands": self.commands,
-            "lane_changes": self.lane_changes,
+            "lane_requests": self.lane_requests,
         }
 
 

@@ -134,7 +134,7 @@ def controller_summary(reports: Sequence[dict[str, Any]]) -> dict[str, Any]:
         ``{"steps": n, "median_ms": x, "p99_ms": x, "mean_ms": x,
         "phases_median_ms": {phase: x}, "phases_p99_ms": {phase: x},
         "overflow_vehicle_steps": n,
-        "commands": n, "lane_changes": n}``; times are of the whole
+        "commands": n, "lane_requests": n}``; times are of the whole
         controller call (read, observe, policy, command) and pooled over the
         runs' steps; the counts are totals.
     """
@@ -157,7 +157,7 @@ def controller_summary(reports: Sequence[dict[str, Any]]) -> dict[str, Any]:
         },
         **{
             key: int(sum(r[key] for r in reports))
-            for key in ("overflow_vehicle_steps", "commands", "lane_changes")
+            for key in ("overflow_vehicle_steps", "commands", "lane_requests")
         },
     }
 

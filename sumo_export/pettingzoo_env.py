@@ -15,9 +15,10 @@ The same functions as the JAX environment, none copied:
   from libsumo (`sumo_export.traffic.SumoObserver`), as the exported
   policy's controller sees them.
 - action: float32 (2,) per AV, the JAX environment's per-slot action
-  (``agent.action: accel``: acceleration, clipped to [-decel, accel], and
-  the lane-change flag; ``assertiveness``: the raw assertiveness), sent to
-  SUMO by the controller's own `PolicyController.command`.
+  (``agent.action: accel``: acceleration, clipped to [-decel, accel];
+  ``assertiveness``: the raw assertiveness; then the lane column in
+  [-1, 1], `jaxround.envs.lane_view`), sent to SUMO by the controller's own
+  `PolicyController.command`.
 - reward: `jaxround.envs.reward` (the scenario's ``agent.reward``) on the
   speeds and CO2 SUMO reports after the step (`sumo_export.sumo_reward`).
 
@@ -143,10 +144,10 @@ class SumoParallelEnv(ParallelEnv):
     def action_space(self, agent: str) -> spaces.Box:
         """float32 (2,): as `jaxround.integrations.gymnax_env.action_bounds`."""
         if self.cfg.agent.action == "assertiveness":
-            low, high = (-RAW_BOUND, 0.0), (RAW_BOUND, 1.0)
+            low, high = (-RAW_BOUND, -1.0), (RAW_BOUND, 1.0)
         else:
             av = self.cfg.drivers.av
-            low, high = (-av.decel, 0.0), (av.accel, 1.0)
+            low, high = (-av.decel, -1.0), (av.accel, 1.0)
         return spaces.Box(np.float32(low), np.float32(high), (2,), np.float32)
 
     # ------------------------------------------------------------------ API

@@ -4,8 +4,9 @@
 
 The factory builds a `PolicyController` in each SUMO worker whose policy is
 the scripted rule, jitted once and called in NumPy on the occupied slots'
-rich observation rows; the controller commands ``setSpeed(v + a dt)`` as
-for a trained policy, under SUMO's speed mode 31.
+observation rows; the controller commands ``setSpeed(v + a dt)`` as
+for a trained policy, under SUMO's speed mode 31, and a lane rule's
+requests with ``changeLane``.
 """
 
 from __future__ import annotations
@@ -23,18 +24,19 @@ from sumo_export.traffic import DEFAULT_SLOTS, synchronous_cpu_dispatch
 
 
 def scripted_policy(spec: str, dt_s: float) -> PolicyFn:
-    """The NumPy ``act(obs (n, 17), mask (n,)) -> (accel (n,), change (n,))``
-    of a scripted controller; it never changes lanes.
+    """The NumPy ``act(obs (n, D), mask (n,)) -> (accel (n,), lane (n,))``
+    of a scripted controller, on its observer's rows (``"rich"``, or
+    ``"lanes"`` with a lane rule: `jaxround.envs.scripted_lanes`).
 
     Raises:
         ValueError: a bad spec (`jaxround.envs.scripted.controller_from_spec`).
     """
-    act = jax.jit(controller_from_spec(spec, dt_s=dt_s).act)
+    act = jax.jit(controller_from_spec(spec, dt_s=dt_s).action)
 
     def policy(obs: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        accel = np.asarray(act(np.asarray(obs, np.float32)), np.float64)
-        accel = np.where(mask, accel, 0.0)
-        return accel, np.zeros_like(accel)
+        action = np.asarray(act(np.asarray(obs, np.float32)), np.float64)
+        accel = np.where(mask, action[:, 0], 0.0)
+        return accel, np.where(mask, action[:, 1], np.nan)
 
     return policy
 
@@ -58,4 +60,5 @@ class ScriptedControllerFactory:
     def __call__(self, cfg: ScenarioConfig, schedule: Schedule) -> PolicyController:
         synchronous_cpu_dispatch()
         act = scripted_policy(self.spec, cfg.simulation.dt_s)
-        return PolicyController(cfg, schedule, act, "rich", self.max_slots)
+        observer = controller_from_spec(self.spec).observer
+        return PolicyController(cfg, schedule, act, observer, self.max_slots)

@@ -4,7 +4,9 @@
 position on the lane, speed, acceleration, waiting time) into slots: a
 vehicle's position along its route is where its lane starts on the route
 (`CompiledNetwork.lane_offset`) plus its position on the lane, as the JAX
-environment counts it. `SumoObserver.observe` computes the rows with the
+environment counts it. On two-lane roads a route is a lane path, which
+`jaxround.lanes.tracking.PathTracker` follows from SUMO's lanes step by
+step. `SumoObserver.observe` computes the rows with the
 environment's own jitted observer (`RoundaboutEnv.observation`).
 
 The observers' rows do not depend on how many empty slots follow the
@@ -34,7 +36,7 @@ from jaxround.core.state import EnvState
 from jaxround.envs.observe import OBSERVATION_SIZES
 from jaxround.envs.roundabout import RoundaboutEnv, make
 from jaxround.envs.slots import ROAD
-from jaxround.envs.supported import check_single_lane
+from jaxround.lanes.tracking import PathTracker
 from jaxround.scenario.config import ScenarioConfig
 from jaxround.scenario.schedule import Schedule
 from sumo_export.scenario import vehicle_id
@@ -100,7 +102,6 @@ class SumoObserver:
         max_slots: int | str | None = DEFAULT_SLOTS,
         strict: bool = False,
     ) -> None:
-        check_single_lane(cfg, "an AV policy or scripted AV controller in SUMO")
         if observer not in OBSERVATION_SIZES:
             raise ValueError(
                 f"observer {observer!r}, expected one of {sorted(OBSERVATION_SIZES)}"
@@ -110,20 +111,24 @@ class SumoObserver:
         )
         self.env, self.params = make(cfg, max_vehicles=max_slots)
         self.strict = strict
-        net = self.env.network
+        net, changer = self.env.network, self.env.lane_changer
         self._lane_index = {lane: k for k, lane in enumerate(net.lane_ids)}
         self._lane_offset = net.lane_offset
+        # two-lane roads: routes are lane paths, which a tracker follows
+        self._paths = None if changer is None else changer.paths
         self.use_schedule(schedule)
         self.slot_sizes = slot_sizes(self.env.max_vehicles)
         self._observers = {
             size: observation_function(
-                RoundaboutEnv(cfg, net, size, self.env.episode_s), self.params
+                RoundaboutEnv(cfg, net, size, self.env.episode_s, changer),
+                self.params,
             )
             for size in self.slot_sizes
         }
         for size, fn in self._observers.items():  # compile now, not in a step
             fn(np.zeros((size, len(COLUMNS)), np.float32)).block_until_ready()
         self.overflow_vehicle_steps = 0
+        self.off_path_vehicle_steps = 0
 
     @property
     def max_slots(self) -> int:
@@ -149,6 +154,11 @@ class SumoObserver:
             vehicle_id(i): (int(r), bool(a))
             for i, (r, a) in enumerate(zip(route, schedule.is_av, strict=True))
         }
+        self._tracker = None
+        if self._paths is not None:  # route: the (origin, exit) route's index
+            self._tracker = PathTracker(self._paths)
+            od = self._paths.route_index[schedule.origin, schedule.destination]
+            self._od_route = {vehicle_id(i): int(r) for i, r in enumerate(od)}
 
     def read(self, libsumo: Any) -> SumoTraffic:
         """The vehicles in the network after a step, in slots (SUMO's id order).
@@ -158,17 +168,27 @@ class SumoObserver:
         """
         veh = libsumo.vehicle
         m = self.max_slots
-        ids, unslotted = [], []
+        ids, unslotted, off_path = [], [], []
         lanes, routes, avs = [], [], []
         lane_pos, speed, accel, waiting = [], [], [], []
-        for vid in veh.getIDList():
-            lane = self._lane_index.get(veh.getLaneID(vid))
+        tracker = self._tracker
+        all_ids = veh.getIDList()
+        for vid in all_ids:
+            lane_id = veh.getLaneID(vid)
+            lane = self._lane_index.get(lane_id)
             if lane is None:  # teleporting: not on a lane
                 continue
+            route, is_av = self._vehicles[vid]
+            if tracker is not None:
+                try:
+                    route = tracker.step(vid, lane_id, self._od_route[vid])[1]
+                except ValueError:  # off the lane paths: drives uncontrolled
+                    tracker.state.pop(vid, None)
+                    off_path.append(vid)
+                    continue
             if len(ids) == m:
                 unslotted.append(vid)
                 continue
-            route, is_av = self._vehicles[vid]
             ids.append(vid)
             lanes.append(lane)
             routes.append(route)
@@ -184,6 +204,10 @@ class SumoObserver:
                     "raise max_slots"
                 )
             self.overflow_vehicle_steps += len(unslotted)
+        if tracker is not None:
+            tracker.forget(set(all_ids))
+            self.off_path_vehicle_steps += len(off_path)
+            unslotted += off_path
         n = len(ids)
         size = next(s for s in self.slot_sizes if s >= n)
         table = np.zeros((len(COLUMNS), size), np.float64)

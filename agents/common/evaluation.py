@@ -26,6 +26,7 @@ from agents.common.export import (
     load_policy,
     policy_action,
 )
+from agents.common.networks import lane_column
 from jaxround.analysis.metrics import (
     SCORE_SCALES,
     ScoreScale,
@@ -73,7 +74,7 @@ def switched_policy(
         accel, change = policy_action(arrays, layout, obs, state.active, jnp)
         accel = jnp.where(use_policy, accel, NO_COMMAND)
         change = jnp.where(use_policy, change, False)
-        return jnp.stack([accel, change.astype(jnp.float32)], axis=-1)
+        return jnp.stack([accel, lane_column(change)], axis=-1).astype(jnp.float32)
 
     return act
 

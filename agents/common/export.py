@@ -231,7 +231,10 @@ def policy_action(
 def load_policy_numpy(
     path: str | Path,
 ) -> Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
-    """A NumPy-only ``act(obs (M, D), mask (M,)) -> (accel (M,), change (M,))``."""
+    """A NumPy-only ``act(obs (M, D), mask (M,)) -> (accel (M,), lane (M,))``;
+    ``lane`` is the environment's lane column (`jaxround.envs.lane_view`):
+    1.0 (the lane to the left) where the network changes lanes, NaN (no
+    request) where it keeps."""
     arrays, layout = load_policy(path)
 
     def act(obs: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -241,7 +244,8 @@ def load_policy_numpy(
                 f"observation rows have {obs.shape[-1]} numbers, the policy reads "
                 f"{layout.obs_size} ({layout.observer!r} observer)"
             )
-        return policy_action(arrays, layout, obs, mask, np)
+        accel, change = policy_action(arrays, layout, obs, mask, np)
+        return accel, np.where(change, 1.0, np.nan)
 
     return act
 

@@ -167,8 +167,16 @@ def sample(
 
 
 def env_action(accel: jax.Array, change: jax.Array) -> jax.Array:
-    """The environment's action, float (..., M, 2): command and change flag (0/1)."""
-    return jnp.stack([accel, change.astype(accel.dtype)], axis=-1)
+    """The environment's action, float (..., M, 2): command and lane column
+    (`jaxround.envs.lane_view`): "change" asks for the lane to the left,
+    "keep" asks nothing (NaN: LC2013 decides)."""
+    return jnp.stack([accel, lane_column(change).astype(accel.dtype)], axis=-1)
+
+
+def lane_column(change: jax.Array) -> jax.Array:
+    """The lane column of a binary lane decision (bool or 0/1, (...,)): 1.0
+    (the lane to the left) where it changes, NaN (no request) where not."""
+    return jnp.where(change.astype(bool), 1.0, jnp.nan)
 
 
 def deterministic_action(
@@ -212,6 +220,7 @@ __all__ = [
     "entropy",
     "env_action",
     "init_params",
+    "lane_column",
     "log_prob",
     "n_inputs",
     "policy_inputs",

@@ -206,7 +206,7 @@ def cruise_action(speed: jax.Array, cruise_mps: jax.Array, dt_s: float) -> jax.A
     """
     accel = (cruise_mps - speed) / dt_s
     accel = jnp.where(cruise_mps >= NO_CRUISE_MPS, jnp.nan, accel)
-    return jnp.stack([accel, jnp.zeros_like(accel)], axis=1)
+    return jnp.stack([accel, jnp.full_like(accel, jnp.nan)], axis=1)
 
 
 #: steer(state) -> (params of this step, action (M, 2)).

@@ -4,7 +4,8 @@ A driver spec is one of
 
 - ``uncontrolled`` (or None): the AVs drive their vType, no commands;
 - a scripted controller, ``accel:A``, ``cruise:V``, ``eco[:B]``,
-  ``timed[:H]`` (`jaxround.envs.scripted`);
+  ``timed[:H]`` (`jaxround.envs.scripted`), with a lane rule after ``+``
+  (``inner``, ``outer``, ``gap:X``) or a lane rule alone;
 - an exported policy: a ``.npz``/``.json`` file, its stem or a training folder
   (`agents.common.export`).
 
@@ -24,7 +25,7 @@ import jax.numpy as jnp
 
 from jaxround.core.params import EnvParams
 from jaxround.core.state import EnvState
-from jaxround.envs import observe
+from jaxround.envs.lane_view import observation_by_name
 from jaxround.envs.rollout import Policy, uncontrolled_policy
 from jaxround.envs.roundabout import RoundaboutEnv
 from jaxround.envs.scripted import controller_from_spec, is_scripted_spec
@@ -60,8 +61,8 @@ def parse_driver(spec: str | None) -> DriverSpec:
     if spec is None or spec == UNCONTROLLED:
         return DriverSpec(UNCONTROLLED, UNCONTROLLED, None)
     if is_scripted_spec(spec):
-        controller_from_spec(spec)  # raises on a bad value
-        return DriverSpec(spec, "scripted", "rich")
+        controller = controller_from_spec(spec)  # raises on a bad value
+        return DriverSpec(spec, "scripted", controller.observer)
     from agents.common.export import load_policy
 
     try:
@@ -69,7 +70,8 @@ def parse_driver(spec: str | None) -> DriverSpec:
     except FileNotFoundError as err:
         raise ValueError(
             f"driver {spec!r}: no exported policy there ({err}); a driver is "
-            "'uncontrolled', accel:A, cruise:V, eco[:B], timed[:H] or a policy "
+            "'uncontrolled', accel:A, cruise:V, eco[:B], timed[:H] (+inner, "
+            "+outer, +gap:X, or one of those alone) or a policy "
             "file (.npz/.json, its stem or a training folder)"
         ) from None
     return DriverSpec(spec, "policy", layout.observer, layout.action)
@@ -132,13 +134,15 @@ def jax_driver(env: RoundaboutEnv, params: EnvParams, driver: DriverSpec) -> Pol
     if driver.kind == "scripted":
         controller = controller_from_spec(driver.spec, dt_s=env.dt)
 
+        lanes = None if env.lane_changer is None else env.lane_changer.arrays
+
         def scripted(obs: jax.Array, state: EnvState, key: jax.Array) -> jax.Array:
             del obs, key
-            rich = observe.rich_observation(
-                env.net, state, params, env.route_destination
-            )
-            accel = controller.act(rich)
-            return jnp.stack([accel, jnp.zeros_like(accel)], axis=-1)
+            rows = observation_by_name(
+                controller.observer, env.net, lanes, state, params,
+                env.route_destination,
+            )  # fmt: skip
+            return controller.action(rows)
 
         return scripted
     from agents.common.evaluation import switched_policy

@@ -214,7 +214,7 @@ def run_jax(
             del obs, key
             rich = rich_observation(env.net, state, params, env.route_destination)
             accel = scripted_command(rich, rule, value, env.dt)
-            return jnp.stack([accel, jnp.zeros_like(accel)], axis=1)
+            return jnp.stack([accel, jnp.full_like(accel, jnp.nan)], axis=1)
 
         return run_until_left(env, params, schedule, jax.random.PRNGKey(0), policy)
 

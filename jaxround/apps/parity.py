@@ -27,7 +27,6 @@ import numpy as np
 from jaxround.analysis.metrics import arrived_in_all, class_metrics, mean_over_runs
 from jaxround.analysis.saturation import saturation_report
 from jaxround.apps.drivers import (
-    UNCONTROLLED,
     DriverSpec,
     config_for,
     jax_driver,
@@ -38,7 +37,7 @@ from jaxround.core.capacity import road_capacity
 from jaxround.envs.rollout import run_until_left, vehicle_records
 from jaxround.envs.roundabout import RoundaboutEnv, make
 from jaxround.envs.slots import redo_on_overflow
-from jaxround.envs.supported import check_jax_lanes, check_single_lane
+from jaxround.envs.supported import check_jax_lanes
 from jaxround.scenario.config import ScenarioConfig
 from jaxround.scenario.edges import ring_edge
 from jaxround.scenario.schedule import make_schedule
@@ -174,8 +173,6 @@ def parity_report(
 
     check_jax_lanes(cfg)  # before SUMO runs: the JAX side would refuse it
     driver = parse_driver(controller)
-    if driver.kind != UNCONTROLLED:
-        check_single_lane(cfg, f"parity with the AV controller {driver.spec!r}")
     cfg = cfg.with_overrides(penetration=penetration)
     drain_s = DRAIN_S if drain_s is None else drain_s
     cap_s = cfg.demand.duration_s + drain_s

@@ -56,7 +56,7 @@ def constant_policy(
         del obs, key
         rich = rich_observation(env.net, state, params, env.route_destination)
         accel = controller.act(rich)  # (M,)
-        return jnp.stack([accel, jnp.zeros_like(accel)], axis=1)
+        return jnp.stack([accel, jnp.full_like(accel, jnp.nan)], axis=1)
 
     return act
 

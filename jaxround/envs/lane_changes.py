@@ -24,6 +24,7 @@ from flax import struct
 from jaxround.core.dynamics import SpeedPatch
 from jaxround.core.network import CompiledNetwork
 from jaxround.core.state import EnvState
+from jaxround.envs.lane_view import lane_request
 from jaxround.lanes import ring_changer, ring_rounds
 from jaxround.lanes.best_lanes import LookAheadDriver
 from jaxround.lanes.follow import Driver
@@ -107,13 +108,23 @@ class LaneChanger:
     def __init__(
         self, cfg: ScenarioConfig, net_file: str | Path, in_rounds: bool | None = None
     ) -> None:
-        self.arrays = changer_arrays(cfg, changer_tables(cfg, net_file))
+        tables = changer_tables(cfg, net_file)
+        self.paths = tables.paths
+        self.arrays = changer_arrays(cfg, tables)
         self.hv = driver_numbers(cfg.drivers.hv)
         self.av = driver_numbers(cfg.drivers.av)
         self.dt = cfg.simulation.dt_s
         if in_rounds is None:
             in_rounds = jax.default_backend() != "cpu"
         self.in_rounds = in_rounds
+
+    def request(
+        self, state: EnvState, lane_action: jax.Array, agent: jax.Array
+    ) -> jax.Array:
+        """int (M,) the lane index each AV's action asks for in this step's
+        changes (-1: none), from ``state`` before the move
+        (`jaxround.envs.lane_view.lane_request`)."""
+        return lane_request(self.arrays, state, lane_action, agent)
 
     def patch(self, state: EnvState, lc: LaneChangeParams) -> SpeedPatch:
         """``MSLCM_LC2013::patchSpeed`` for the next move: the speed advices

@@ -40,7 +40,8 @@ SPEED_SCALE = 15.0
 #: Horizon of the ring traffic's arrival at the entry, s.
 RING_HORIZON_S = 10.0
 
-OBSERVATION_SIZES = {"paper": 10, "rich": 17}
+#: Numbers per slot of each observer (``"lanes"``: `jaxround.envs.lane_view`).
+OBSERVATION_SIZES = {"paper": 10, "rich": 17, "lanes": 24}
 
 
 def paper_observation(

@@ -22,14 +22,14 @@ NO_COMMAND = float("nan")
 
 
 def uncontrolled_policy(env: RoundaboutEnv) -> Policy:
-    """AVs drive their own vType (IDM) as SUMO does without a controller:
-    no speed command (NaN, `jaxround.envs.actions.command_from_action`). Human
-    drivers ignore the action."""
+    """AVs drive their own vType (IDM, LC2013) as SUMO does without a
+    controller: no speed command and no lane request (NaN,
+    `jaxround.envs.actions.command_from_action`, `jaxround.envs.lane_view`).
+    Human drivers ignore the action."""
 
     def act(obs: jax.Array, state: EnvState, key: jax.Array) -> jax.Array:
         del obs, state, key
-        accel = jnp.full((env.max_vehicles, 1), NO_COMMAND, jnp.float32)
-        return jnp.concatenate([accel, jnp.zeros_like(accel)], axis=1)
+        return jnp.full((env.max_vehicles, 2), NO_COMMAND, jnp.float32)
 
     return act
 

@@ -33,6 +33,7 @@ from jaxround.envs import conflicts, departures, observe, queues, schedules
 from jaxround.envs.actions import command_from_action
 from jaxround.envs.assertiveness import retuned_params
 from jaxround.envs.lane_changes import LaneChanger, LaneState, compiled_network
+from jaxround.envs.lane_view import observation_by_name
 from jaxround.envs.reward import av_reward, system_reward
 from jaxround.envs.slots import resolve_slots
 from jaxround.envs.supported import check_driver_classes, check_jax_lanes
@@ -125,7 +126,7 @@ class RoundaboutEnv:
 
     @property
     def action_size(self) -> int:
-        """Per slot: acceleration (m/s^2) and lane-change decision (> 0.5: change)."""
+        """Per slot: acceleration (m/s^2) and lane (> 0.5 left, < -0.5 right)."""
         return 2
 
     # ------------------------------------------------------------------ schedules
@@ -202,8 +203,8 @@ class RoundaboutEnv:
         Args:
             key: PRNG key (used by the reset).
             state: the current state.
-            action: float (M, 2) per slot: acceleration and lane-change flag
-                (ignored for human drivers).
+            action: float (M, 2) per slot: acceleration (or assertiveness) and
+                lane (> 0.5 left, < -0.5 right); ignored for human drivers.
             params: traced parameters.
 
         Returns:
@@ -228,9 +229,10 @@ class RoundaboutEnv:
         ``speed + action * dt`` (`command_from_action`), which SUMO applies
         while it plans (`jaxround.core.command`): under speed mode 31 it can slow
         an AV below its IDM speed, never raise it above its safe speed; a NaN
-        action leaves the AV to its vType. ``action[:, 1]`` (lane change) is not
-        applied: on two-lane roads every vehicle changes lanes as LC2013
-        decides (`jaxround.envs.lane_changes`).
+        action leaves the AV to its vType. On two-lane roads every vehicle
+        changes lanes as LC2013 decides (`jaxround.envs.lane_changes`), an
+        AV's ``action[:, 1]`` asking for the lane to the left (> 0.5) or
+        right (< -0.5) as a TraCI request (`jaxround.envs.lane_view`).
 
         Returns:
             (obs, state, reward, done, info): reward float (M,) for the AV
@@ -255,10 +257,10 @@ class RoundaboutEnv:
                 command = jnp.full_like(state.speed, jnp.nan)
             else:
                 command = command_from_action(state, action, pv, self.dt)
+            changer = self.lane_changer  # the lane action: a TraCI request
+            request = changer and changer.request(state, action[:, 1], agent)
         lc = LaneChangeParams() if p.lane_change is None else p.lane_change
-        patch = (
-            None if self.lane_changer is None else self.lane_changer.patch(state, lc)
-        )
+        patch = changer and changer.patch(state, lc)
         v_next, regs, _, leader, gap = dynamics.planned_speed(
             net, pv, state.route, state.pos, state.speed, state.speed_factor,
             state.active, state.waiting_s, state.registrations, t, self.dt,
@@ -333,11 +335,11 @@ class RoundaboutEnv:
         # 3. lane changes (two-lane roads), insertions, the queues of the new time
         if self.lane_changer is not None:
             with jax.named_scope("lane_changes"):
-                state, _ = self.lane_changer(state, lc)
+                state, _ = self.lane_changer(state, lc, request)
         with jax.named_scope("insertion"):
             state = self._insert(state, p, t + self.dt)
         with jax.named_scope("queues"):
-            state = self._count_queues(state, p, t + self.dt)
+            state = queues.count_queues(self.net, state, p, t + self.dt)
         done = state.step >= self.episode_steps
         info = {
             "agent": agent,
@@ -360,16 +362,12 @@ class RoundaboutEnv:
             self.net, state, params, t, dt=self.dt, n_substeps=self.n_substeps
         )
 
-    def _count_queues(
-        self, state: EnvState, params: EnvParams, t: jax.Array
-    ) -> EnvState:
-        return queues.count_queues(self.net, state, params, t)
-
     def observation(self, state: EnvState, params: EnvParams) -> jax.Array:
         """The configured observer's rows, float (M, obs_size) (`envs.observe`)."""
-        if self.observer == "paper":
-            return observe.paper_observation(self.net, state, params)[0]
-        return observe.rich_observation(self.net, state, params, self.route_destination)
+        changer = None if self.lane_changer is None else self.lane_changer.arrays
+        return observation_by_name(
+            self.observer, self.net, changer, state, params, self.route_destination
+        )
 
 
 def make(

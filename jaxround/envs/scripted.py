@@ -25,6 +25,12 @@ Specs, as accepted wherever a controller is named:
   yield line H s (default 3) after the ring vehicle reaches the entry,
   at the speed ``2 d / T - v`` that covers the distance d in that time T.
 
+A lane rule (``inner``, ``outer``, ``gap:X``: `jaxround.envs.scripted_lanes`)
+may follow a speed rule after ``+`` (``eco+gap:5``) or stand alone
+(``inner``: no speed command); such a controller reads the ``"lanes"``
+observer (the rich one and 7 lane numbers) and also gives the action's
+lane column.
+
 Shapes: M slots. Every controller is a pure function of the rows, jit- and
 vmap-able; rows of empty slots (all zeros) get a command that is ignored.
 """
@@ -40,6 +46,7 @@ import jax.numpy as jnp
 
 from jaxround.envs.observe import DISTANCE_SCALE, RING_HORIZON_S, SPEED_SCALE
 from jaxround.envs.rollout import NO_COMMAND
+from jaxround.envs.scripted_lanes import LANE_RULES, lane_choice, parse_lane_rule
 
 #: Columns of the rich observation read here (`observe.rich_observation`).
 OWN_SPEED = 10  # speed / SPEED_SCALE
@@ -74,24 +81,38 @@ class ScriptedController:
     Attributes:
         spec: the controller's spec, e.g. ``"eco:0.3"``.
         dt_s: the simulation step, s (``cruise`` reaches its speed in one step).
-        observer: the observer it reads, always ``"rich"``.
     """
 
     spec: str
     dt_s: float = 0.5
-    observer: str = "rich"
 
     def __post_init__(self) -> None:
-        _parse(self.spec)  # raises ValueError on a bad spec
+        _parts(self.spec)  # raises ValueError on a bad spec
+
+    @property
+    def observer(self) -> str:
+        """The observer it reads: ``"lanes"`` with a lane rule, else ``"rich"``."""
+        return "rich" if _parts(self.spec)[1] is None else "lanes"
 
     def act(self, obs: jax.Array) -> jax.Array:
-        """The acceleration command of every slot, float (M,) m/s^2.
+        """The acceleration command of every slot, float (M,) m/s^2 (NaN: none).
 
         Args:
-            obs: float (M, 17) rich observation rows.
+            obs: float (M, D) rows of `observer` (the rich 17 first).
         """
-        name, value = _parse(self.spec)
-        return RULES[name](obs, value, self.dt_s)
+        speed, _ = _parts(self.spec)
+        if speed is None:
+            return jnp.full(obs.shape[:1], NO_COMMAND, obs.dtype)
+        return RULES[speed[0]](obs, speed[1], self.dt_s)
+
+    def action(self, obs: jax.Array) -> jax.Array:
+        """The environment's action, float (M, 2): `act` and the lane column
+        (`jaxround.envs.scripted_lanes`; NaN, no request, without a lane rule)."""
+        accel = self.act(obs)
+        _, lane = _parts(self.spec)
+        no_request = jnp.full_like(accel, jnp.nan)
+        change = no_request if lane is None else lane_choice(obs, *lane)
+        return jnp.stack([accel, change.astype(accel.dtype)], axis=-1)
 
 
 def controller_from_spec(spec: str, dt_s: float = 0.5) -> ScriptedController:
@@ -105,7 +126,10 @@ def controller_from_spec(spec: str, dt_s: float = 0.5) -> ScriptedController:
 
 def rule_and_value(spec: str) -> tuple[int, float]:
     """The index of the spec's rule in `RULES` and its value, for
-    `scripted_command` (raises as `controller_from_spec`)."""
+    `scripted_command` (raises as `controller_from_spec`, and for a spec
+    with a lane rule)."""
+    if "+" in spec or spec.split(":", 1)[0] in LANE_RULES:
+        raise ValueError(f"controller spec {spec!r}: a speed rule alone is needed here")
     name, value = _parse(spec)
     return list(RULES).index(name), value
 
@@ -130,7 +154,7 @@ def scripted_command(
 
 def is_scripted_spec(spec: str) -> bool:
     """Whether `spec` names a scripted controller (rather than, say, a file)."""
-    return spec.split(":", 1)[0] in RULES
+    return spec.split("+", 1)[0].split(":", 1)[0] in {*RULES, *LANE_RULES}
 
 
 # ---------------------------------------------------------------------- rules
@@ -217,15 +241,28 @@ LOWEST: dict[str, float | None] = {
 }
 
 
-def _parse(spec: str) -> tuple[str, float]:
-    """(rule name, value) of a spec, checked."""
+def _parts(spec: str) -> tuple[tuple[str, float] | None, tuple[str, float] | None]:
+    """(speed rule, lane rule) of a spec, each (name, value) or None; checked."""
     if not isinstance(spec, str):
         raise ValueError(f"controller spec {spec!r}: expected a string")
-    name, sep, text = spec.partition(":")
+    first, plus, lane = spec.partition("+")
+    if not plus and first.split(":", 1)[0] in LANE_RULES:
+        return None, parse_lane_rule(spec, first)
+    speed = _parse(first if plus else spec, spec)
+    return speed, parse_lane_rule(spec, lane) if plus else None
+
+
+def _parse(text: str, spec: str | None = None) -> tuple[str, float]:
+    """(rule name, value) of the speed rule ``text`` of ``spec``, checked."""
+    spec = text if spec is None else spec
+    if not isinstance(text, str):
+        raise ValueError(f"controller spec {spec!r}: expected a string")
+    name, sep, text = text.partition(":")
     if name not in RULES:
         raise ValueError(
             f"controller spec {spec!r}: unknown controller {name!r}; expected "
-            "accel:A, cruise:V, eco[:B] or timed[:H]"
+            "accel:A, cruise:V, eco[:B] or timed[:H], then +inner, +outer or "
+            "+gap:X, or a lane rule alone"
         )
     if not sep:
         value = DEFAULTS[name]

@@ -19,18 +19,17 @@ from jaxround.scenario.config import (
 
 
 def check_single_lane(cfg: ScenarioConfig, what: str = "this command") -> None:
-    """What still needs one lane on every road (an AV policy or a scripted AV
-    controller, which observe the traffic as one-lane routes; the tools
-    built on them) refuses a config with a two-lane ring, entry or exit,
-    naming those keys and `what` it was asked for."""
+    """What still needs one lane on every road (training, evaluation, the
+    searches, the study and the main job: their policies, settings and
+    tables are one-lane ones) refuses a config with a two-lane ring, entry
+    or exit, naming those keys and `what` it was asked for."""
     keys = cfg.network.multi_lane_keys()
     if keys:
         raise ConfigError(
             f"{', '.join(keys)}: {what} needs one lane on every road for now. "
-            "On two-lane roads the JAX environment drives human drivers and "
-            "uncontrolled AVs (`jaxround parity --config ...`); AV policies, "
-            "scripted AV controllers and the lane-change action do not run "
-            "there yet"
+            "On two-lane roads `jaxround parity --config ... [--controller ...]` "
+            "runs human drivers, uncontrolled AVs, scripted AV controllers "
+            "(lane rules too) and exported policies in both simulators"
         )
 
 

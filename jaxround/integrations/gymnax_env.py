@@ -15,9 +15,10 @@ How M vehicle slots sharing one policy fit gymnax's single-agent API:
   the slot holds an AV, which the action drives; 0.0 for human drivers and
   empty slots). A shared policy maps each row to the row of its action.
 - action: float (2M,), the (M, 2) per-slot action of `RoundaboutEnv.step`
-  row by row (``agent.action: accel``: acceleration in [-decel, accel] m/s^2
-  and the lane-change flag; ``assertiveness``: the raw assertiveness,
-  bounded to +-RAW_BOUND here); `step` takes the (M, 2) array as well. Flat,
+  row by row (``agent.action: accel``: acceleration in [-decel, accel] m/s^2;
+  ``assertiveness``: the raw assertiveness, bounded to +-RAW_BOUND here;
+  then the lane column in [-1, 1], `jaxround.envs.lane_view`); `step`
+  takes the (M, 2) array as well. Flat,
   so that a PureJaxRL script sizes its actor by ``action_space.shape[0]``
   as for any Box; rows of unmasked slots are ignored.
 - reward: float (), the sum of the AV slots' rewards (the team's return; with
@@ -67,12 +68,14 @@ def with_mask(obs: jax.Array, state: EnvState) -> jax.Array:
 
 def action_bounds(env: RoundaboutEnv, params: EnvParams) -> tuple[jax.Array, ...]:
     """(low, high) of one slot's action, float (2,) each: the first number's
-    range for the configured action meaning, and [0, 1] for the lane change."""
+    range for the configured action meaning, and [-1, 1] for the lane
+    column (`jaxround.envs.lane_view`: > 0.5 left, < -0.5 right, hold
+    between)."""
     if env.cfg.agent.action == "assertiveness":
         first = (-RAW_BOUND, RAW_BOUND)
     else:
         first = (-params.vehicle.decel, params.av.accel)
-    low = jnp.stack([jnp.asarray(first[0], jnp.float32), jnp.float32(0.0)])
+    low = jnp.stack([jnp.asarray(first[0], jnp.float32), jnp.float32(-1.0)])
     high = jnp.stack([jnp.asarray(first[1], jnp.float32), jnp.float32(1.0)])
     return low, high
 

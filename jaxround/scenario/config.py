@@ -158,7 +158,7 @@ DRAIN_S = 1800.0
 
 
 #: Observers of the AV policy (`jaxround.envs.observe`).
-OBSERVERS = ("paper", "rich")
+OBSERVERS = ("paper", "rich", "lanes")
 #: The AVs' rewards (`jaxround.envs.reward`).
 REWARDS = ("paper", "system")
 #: What an AV's action means (`jaxround.envs.roundabout.RoundaboutEnv.step_env`).
@@ -169,7 +169,7 @@ ACTIONS = ("accel", "assertiveness")
 class AgentConfig:
     """What an AV's policy sees and is rewarded for (`envs.observe`, `envs.reward`)."""
 
-    observer: str = "rich"  # "paper" (Eq. 1, 10 numbers) or "rich" (Eq. 1 + more)
+    observer: str = "rich"  # "paper" (Eq. 1, 10), "rich" (Eq. 1 + 7), "lanes" (+ 7)
     reward: str = "paper"  # "paper" (Eq. 3) or "system" (time and CO2 of all)
     action: str = "accel"  # "accel" (a speed command) or "assertiveness" (vType)
     speed_weight: float = 1.0  # paper: weight of the desired-velocity term of Eq. 3

@@ -98,7 +98,7 @@ def test_spaces_say_the_shapes_and_the_bounds(view: RoundaboutGymnax) -> None:
         act_space.low.reshape(SLOTS, 2),
         act_space.high.reshape(SLOTS, 2),
     )
-    np.testing.assert_allclose(rows_low, [[-params.vehicle.decel, 0.0]] * SLOTS)
+    np.testing.assert_allclose(rows_low, [[-params.vehicle.decel, -1.0]] * SLOTS)
     np.testing.assert_allclose(rows_high, [[params.av.accel, 1.0]] * SLOTS)
     obs = jnp.zeros(obs_space.shape).at[:, MASK_COLUMN].set(1.0)
     assert bool(obs_space.contains(obs))

@@ -112,7 +112,7 @@ def test_spaces_and_agents(marl: RoundaboutMARL) -> None:
     assert marl.agent_classes == {"av": marl.agents}
     space = marl.action_space(marl.agents[0])
     assert space.shape == (2,)
-    np.testing.assert_allclose(space.low, [-marl.params.vehicle.decel, 0.0])
+    np.testing.assert_allclose(space.low, [-marl.params.vehicle.decel, -1.0])
     assert marl.observation_space(marl.agents[-1]).shape == (marl.env.obs_size,)
 
 

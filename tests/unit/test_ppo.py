@@ -266,10 +266,11 @@ def test_export_round_trip(tmp_path: Path, activation: str, centralised: bool) -
     )
     act = load_policy_numpy(tmp_path)  # the folder finds policy.npz
     for i in range(4):
-        accel, change = act(obs[i], mask[i])
-        assert accel.dtype == np.float32 and change.dtype == bool
+        accel, lane = act(obs[i], mask[i])  # lane: 1.0 (left) or NaN (none)
+        assert accel.dtype == np.float32
         np.testing.assert_allclose(accel, np.asarray(accel_jax[i]), atol=1e-5)
-        np.testing.assert_array_equal(change, np.asarray(change_jax[i]))
+        np.testing.assert_array_equal(lane == 1.0, np.asarray(change_jax[i]))
+        assert np.isnan(lane[~np.asarray(change_jax[i])]).all()
     assert np.any(np.asarray(accel_jax) == 2.6) or np.any(np.asarray(accel_jax) < 0)
     arrays, loaded = load_policy(npz)
     assert loaded == layout

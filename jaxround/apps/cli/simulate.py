@@ -255,7 +255,9 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--controller", default=None, metavar="SPEC",
         help="who drives the AVs in both simulators: uncontrolled (default, "
-        "their vType), accel:A, cruise:V, eco[:B], timed[:H] or a policy file",
+        "their vType), accel:A, cruise:V, eco[:B], timed[:H], a lane rule "
+        "after + or alone on two-lane roads (inner, outer, gap:X; e.g. "
+        "eco+gap:5) or a policy file",
     )  # fmt: skip
     p.add_argument(
         "--av", default=None, metavar="NAME=V,...",

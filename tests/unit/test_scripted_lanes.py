@@ -1,0 +1,192 @@
+"""The AVs' lane action and scripted lane rules: specs, choices on hand-made
+rows, the ``"lanes"`` observer's numbers for vehicles placed by hand on the
+two-lane roundabout, and the request an action turns into."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxround.envs.lane_view import (
+    GAP_LEFT,
+    GAP_OWN,
+    GAP_RIGHT,
+    LANE_INDEX,
+    ROOM_LEFT,
+    ROOM_OWN,
+    ROOM_RIGHT,
+    lane_direction,
+)
+from jaxround.envs.observe import DISTANCE_SCALE, OBSERVATION_SIZES
+from jaxround.envs.roundabout import make
+from jaxround.envs.scripted import (
+    controller_from_spec,
+    is_scripted_spec,
+    rule_and_value,
+)
+from jaxround.lanes.paths import LEFT
+from jaxround.scenario.schedule import make_schedule
+from sumo_export.scripted import ScriptedControllerFactory
+from tests.conftest import small_config
+
+
+def lane_row(
+    lane: int = 0,
+    room: tuple[float, float] = (0.0, 60.0),
+    gaps: tuple[float, float, float] = (20.0, 0.0, 20.0),
+    own_room: float = 80.0,
+) -> np.ndarray:
+    """A ``"lanes"`` row, float (24,): lane index, room own/right/left (m)
+    and gaps own/right/left (m); the rich part zeros."""
+    obs = np.zeros(OBSERVATION_SIZES["lanes"], np.float32)
+    obs[LANE_INDEX] = lane
+    obs[ROOM_OWN] = min(own_room / DISTANCE_SCALE, 1.0)
+    obs[ROOM_RIGHT], obs[ROOM_LEFT] = np.minimum(np.array(room) / DISTANCE_SCALE, 1)
+    scaled = np.minimum(np.array(gaps) / DISTANCE_SCALE, 1)
+    obs[GAP_OWN], obs[GAP_RIGHT], obs[GAP_LEFT] = scaled
+    return obs
+
+
+def lanes_of(spec: str, *rows: np.ndarray) -> np.ndarray:
+    action = jax.jit(controller_from_spec(spec).action)(jnp.asarray(np.stack(rows)))
+    return np.asarray(action)
+
+
+@pytest.mark.parametrize(
+    ("spec", "message"),
+    [
+        ("left", "unknown controller 'left'"),
+        ("gap", r"expected gap:X \(m\)"),
+        ("inner:3", "expected inner, without a value"),
+        ("gap:-1", "gap needs a value >= 0"),
+        ("gap:wide", "'wide' is not a number"),
+        ("eco+middle", "unknown lane rule 'middle'"),
+        ("eco+", "unknown lane rule ''"),
+        ("brake+inner", "unknown controller 'brake'"),
+    ],
+)
+def test_bad_lane_specs_name_the_problem(spec: str, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        controller_from_spec(spec)
+    with pytest.raises(ValueError, match=message):
+        ScriptedControllerFactory(spec)
+
+
+def test_lane_specs_read_the_lanes_observer() -> None:
+    for spec in ("inner", "outer", "gap:5", "eco+gap:5", "cruise:8+outer"):
+        assert is_scripted_spec(spec)
+        assert controller_from_spec(spec).observer == "lanes"
+    assert controller_from_spec("eco").observer == "rich"
+    with pytest.raises(ValueError, match="a speed rule alone"):
+        rule_and_value("eco+inner")
+
+
+def lane_column(spec: str, *rows: np.ndarray) -> list[float | None]:
+    """The lane column of each row, None for NaN (no request)."""
+    return [None if np.isnan(x) else float(x) for x in lanes_of(spec, *rows)[:, 1]]
+
+
+def test_lane_rules_choose_as_documented() -> None:
+    outer_lane = lane_row(lane=0, room=(0.0, 60.0))  # the left lane counts
+    short = lane_row(lane=0, room=(0.0, 30.0))  # it ends within 50 m
+    inner_lane = lane_row(lane=1, room=(80.0, 0.0), gaps=(10.0, 40.0, 0.0))
+    leaving = lane_row(lane=1, room=(80.0, 0.0), own_room=30.0)  # must go soon
+    inner = lanes_of("inner", outer_lane, short, inner_lane, leaving)
+    assert np.isnan(inner[:, 0]).all()  # a lane rule alone: no speed command
+    # left where it counts, else hold, but not near the end of the own path
+    assert lane_column("inner", outer_lane, short, inner_lane, leaving) == [
+        1.0, 0.0, 0.0, None,
+    ]  # fmt: skip
+    assert lane_column("outer", outer_lane, short, inner_lane, leaving) == [
+        0.0, 0.0, -1.0, -1.0,
+    ]  # fmt: skip
+    # gap:X: the lane beside only when its gap is more than X m longer
+    wider = lane_row(lane=0, gaps=(10.0, 0.0, 25.0))
+    assert lane_column("gap:10", wider, inner_lane) == [1.0, -1.0]
+    assert lane_column("gap:20", wider, inner_lane) == [0.0, -1.0]
+    assert lane_column("gap:40", wider, inner_lane) == [0.0, 0.0]
+    # with a speed rule: its command, and the lane rule's column
+    assert lanes_of("accel:-1+outer", inner_lane).tolist() == [[-1.0, -1.0]]
+    # a speed rule alone asks for no lane
+    assert np.isnan(lanes_of("eco", inner_lane)[:, 1]).all()
+
+
+def test_lane_column_thresholds() -> None:
+    column = jnp.array([1.0, 0.6, 0.5, 0.0, -0.5, -0.7, jnp.nan])
+    asked, direction = lane_direction(column)
+    assert direction.tolist()[:6] == [1, 1, 0, 0, 0, -1]
+    assert asked.tolist() == [True] * 6 + [False]
+
+
+@pytest.fixture(scope="module")
+def two_lane() -> tuple:
+    cfg = small_config("two_lane", n_vehicles=40, duration_s=60.0)
+    cfg = dataclasses.replace(
+        cfg, agent=dataclasses.replace(cfg.agent, observer="lanes")
+    )
+    env, params = make(cfg, max_vehicles=8)
+    sched = env.schedule_from_numpy(make_schedule(cfg, seed=1, penetration=1.0))
+    _, state = jax.jit(env.reset_to_schedule)(sched, params)
+    return env, params, state
+
+
+def placed(env, state, paths: list[int], pos: list[float]):
+    """``state`` with vehicles on these lane paths at these positions (m)."""
+    n = len(paths)
+    return state.replace(
+        active=jnp.zeros_like(state.active).at[:n].set(True),
+        route=state.route.at[:n].set(jnp.asarray(paths, jnp.int32)),
+        pos=state.pos.at[:n].set(jnp.asarray(pos, state.pos.dtype)),
+        speed=state.speed.at[:n].set(5.0),
+        is_av=state.is_av.at[:n].set(True),
+    )
+
+
+def test_lane_numbers_of_vehicles_placed_by_hand(two_lane) -> None:
+    """An AV on the outer ring lane, one ahead of it on the same lanes and
+    one beside-ahead on the inner lane: its own gap, the gap on the left,
+    its lane index; and the request its action gives."""
+    env, params, state = two_lane
+    paths = env.lane_changer.paths
+    # a path on the ring's outer lane (lane index 0) that may change left there
+    ring = [
+        (p, k)
+        for p in range(paths.n_paths)
+        for k in range(paths.path_lanes.shape[1])
+        if paths.path_lanes[p, k] >= 0
+        and paths.lane_ids[paths.path_lanes[p, k]].startswith("ring")
+        and paths.lane_index[paths.path_lanes[p, k]] == 0
+        and paths.change_path[p, k, LEFT] >= 0
+    ]
+    assert ring, "no outer ring lane with a lane to its left"
+    p, k = ring[0]
+    q = int(paths.change_path[p, k, LEFT])
+    start_p = float(paths.path_lane_start[p, k])
+    start_q = float(paths.path_lane_start[q, k])
+    length = float(params.vehicle.length)
+    me = start_p + 1.0
+    state = placed(env, state, [p, p, q], [me, me + 12.0, start_q + 1.0 + 30.0])
+    obs = np.asarray(jax.jit(env.observation)(state, params))
+    assert obs[0, LANE_INDEX] == 0
+    np.testing.assert_allclose(
+        obs[0, GAP_OWN] * DISTANCE_SCALE, 12.0 - length, atol=1e-3
+    )
+    np.testing.assert_allclose(
+        obs[0, GAP_LEFT] * DISTANCE_SCALE, 30.0 - length, atol=1e-3
+    )
+    assert obs[0, ROOM_LEFT] > 0 and obs[0, ROOM_RIGHT] == 0 and obs[0, GAP_RIGHT] == 0
+    assert obs[2, LANE_INDEX] == 1
+    assert obs[0, ROOM_OWN] == 1.0
+    # the request: the lane index to the left, none to the right (no lane)
+    agent = state.active & state.is_av
+    asks = env.lane_changer.request
+    left, right = asks(state, jnp.ones(8), agent), asks(state, -jnp.ones(8), agent)
+    assert int(left[0]) == 1 and int(right[0]) == -1
+    assert int(right[2]) == 0 and int(left[2]) == -1
+    hold = asks(state, jnp.zeros(8), agent)
+    assert hold[:3].tolist() == [0, 0, 1] and (hold[3:] == -1).all()
+    assert (asks(state, jnp.full(8, jnp.nan), agent) == -1).all()
