@@ -1,15 +1,15 @@
 """TraCI lane requests in JAX against SUMO 1.28 on the two-lane roundabout,
 decision by decision (`jaxround.apps.ring_lane_replay`): half the vehicles
 are AVs, and before every step SUMO's AVs are sent
-``changeLane(id, lane, step)`` by a scripted policy
+``changeLane(id, lane, half a step)`` by a scripted policy
 (`ring_lane_record.scripted_policy`; lane-change mode left at SUMO's
 default, 1621); the JAX changer gets the same requests.
 
 Measured (schedule seed 2, 300 s, 2026-11-27): always the inner lane, 65
 of SUMO's 65 changes made in the same step (54 of them TraCI's), 2
 vehicles moved by JAX alone; without the requests in JAX, 10 of 65 and
-45. Always the outer lane: 110 of 116, 29 (without: 106, 97). The other
-lane when its leader is 10 m further: 617 of 651 (361 TraCI's), 103 (most
+45. Always the outer lane: 110 of 116, 27 (without: 106, 97). The other
+lane when its leader is 10 m further: 769 of 794 (421 TraCI's), 81 (most
 of them section 12's known gaps, about 10 with a request on a junction's
 internal lane).
 """

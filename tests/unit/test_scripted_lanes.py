@@ -190,3 +190,26 @@ def test_lane_numbers_of_vehicles_placed_by_hand(two_lane) -> None:
     hold = asks(state, jnp.zeros(8), agent)
     assert hold[:3].tolist() == [0, 0, 1] and (hold[3:] == -1).all()
     assert (asks(state, jnp.full(8, jnp.nan), agent) == -1).all()
+
+
+def test_on_one_lane_roads_the_lane_numbers_ask_for_nothing() -> None:
+    """Milan with the ``"lanes"`` observer: the rich rows, lane 0, no room
+    anywhere, the own gap the rich leader gap; so every lane rule asks
+    nothing there."""
+    cfg = small_config("milan", n_vehicles=40, duration_s=60.0)
+    cfg = dataclasses.replace(
+        cfg, agent=dataclasses.replace(cfg.agent, observer="lanes")
+    )
+    env, params = make(cfg, max_vehicles=16)
+    sched = env.schedule_from_numpy(make_schedule(cfg, seed=1, penetration=1.0))
+    obs, state = jax.jit(env.reset_to_schedule)(sched, params)
+    step, action = jax.jit(env.step_env), jnp.full((16, 2), jnp.nan)
+    for _ in range(40):
+        obs, state, *_ = step(jax.random.PRNGKey(0), state, action, params)
+    rows = np.asarray(obs)[np.asarray(state.active)]
+    assert rows.shape[1] == OBSERVATION_SIZES["lanes"] and len(rows) > 3
+    np.testing.assert_array_equal(rows[:, GAP_OWN], rows[:, 11])  # rich leader gap
+    lane_part = np.delete(rows[:, 17:], GAP_OWN - 17, axis=1)
+    assert (lane_part == 0).all()
+    for spec in ("inner", "outer", "gap:0"):
+        assert np.isnan(lanes_of(spec, *rows)[:, 1]).all()
