@@ -49,6 +49,8 @@ COLUMNS = ("active", "route", "pos", "speed", "accel", "waiting_s", "is_av")
 DEFAULT_SLOTS: int | str | None = ROAD
 #: Smallest slot count the observer is compiled for.
 MIN_SLOTS = 32
+#: A vehicle's path once it was found off the lane paths: it stays unslotted.
+OFF_PATH = -1
 
 
 @dataclass
@@ -92,6 +94,12 @@ class SumoObserver:
             config's, else what the traffic needs); vehicles beyond
             them get no slot and are counted in `overflow_vehicle_steps`.
         strict: raise OverflowError instead of counting when the slots overflow.
+
+    Attributes:
+        overflow_vehicle_steps: vehicle-steps without a slot.
+        off_path_vehicle_steps: vehicle-steps of vehicles found off the lane
+            paths (two-lane roads; after a teleport, say), which get no slot
+            from then on and drive uncontrolled.
     """
 
     def __init__(
@@ -180,10 +188,12 @@ class SumoObserver:
                 continue
             route, is_av = self._vehicles[vid]
             if tracker is not None:
-                try:
+                try:  # off the lane paths (after a teleport, say): uncontrolled
+                    if tracker.state.get(vid) == OFF_PATH:
+                        raise ValueError(vid)
                     route = tracker.step(vid, lane_id, self._od_route[vid])[1]
-                except ValueError:  # off the lane paths: drives uncontrolled
-                    tracker.state.pop(vid, None)
+                except ValueError:
+                    tracker.state[vid] = OFF_PATH
                     off_path.append(vid)
                     continue
             if len(ids) == m:
