@@ -142,8 +142,9 @@ def test_train_writes_the_run_and_a_loadable_policy(first_run: Path) -> None:
     assert layout.accel_bounds[0] < 0 < layout.accel_bounds[1]
     act = load_policy_numpy(first_run)
     obs = np.zeros((cfg.max_vehicles, layout.obs_size), np.float32)
-    accel, change = act(obs, np.ones(cfg.max_vehicles, bool))
-    assert accel.shape == (cfg.max_vehicles,) and change.dtype == bool
+    accel, lane = act(obs, np.ones(cfg.max_vehicles, bool))
+    assert accel.shape == lane.shape == (cfg.max_vehicles,)
+    assert np.all((lane == 1.0) | np.isnan(lane))  # "left" or no request
     assert np.all(np.isfinite(arrays["accel_mean/kernel"]))
 
 
