@@ -102,7 +102,7 @@ SLOW_FILES = (
     "tests/sumo/test_drivers.py",  # 60
     "tests/sumo/test_lane_requests.py",  # 70: three SUMO runs and replays
     "tests/sumo/test_two_lane_step.py",  # 55: a parity run on two lanes
-    "tests/sumo/test_lane_action.py",  # 25: a lane rule in both simulators
+    "tests/sumo/test_lane_action.py",  # 16: a lane rule in both simulators
     "tests/sumo/test_ring_rounds.py",  # 20
     "tests/sumo/test_ring_changer_traffic.py",  # 15
     "tests/sumo/test_ring_changer.py",  # 15

@@ -7,7 +7,7 @@ computes the ``"lanes"`` observation with the JAX environment's own
 observer; its lane-index column must be SUMO's own lane index for every
 vehicle at every step, and while both simulators hold the same traffic
 (the first steps, before one decision differs) the rows must agree.
-Measured (2026-11-27): 240 steps, every lane index right; 88 rows over
+Measured (2026-11-27): 120 steps, every lane index right; 88 rows over
 the first 31 steps within 2.6e-6; 1,027 requests sent (holds included),
 66 lane changes in SUMO, 0 collisions.
 """
@@ -34,7 +34,7 @@ from tests.conftest import small_config
 pytestmark = pytest.mark.sumo
 
 SPEC = "gap:5"
-N_STEPS = 240
+N_STEPS = 120
 #: State agreement under which two observation rows must agree.
 POS_TOL, SPEED_TOL = 1e-4, 1e-5
 OBS_TOL = 1e-4
