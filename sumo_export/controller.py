@@ -243,16 +243,17 @@ class PolicyController:
         way = np.where(change > 0.5, 1, np.where(change < -0.5, -1, 0))
         is_av = traffic.column("is_av")[: len(way)] > 0.5
         asked = np.nonzero(is_av & ~np.isnan(change))[0].tolist()
-        veh = libsumo.vehicle
         for slot in asked:
-            vid = traffic.ids[slot]
-            edge = veh.getRoadID(vid)
+            # the lane the observer read: "<edge>_<index>"
+            edge, index = traffic.lane_ids[slot].rsplit("_", 1)
             if edge not in self._lanes_of_edge:
                 self._lanes_of_edge[edge] = libsumo.edge.getLaneNumber(edge)
             n_lanes = self._lanes_of_edge[edge]
-            target = veh.getLaneIndex(vid) + int(way[slot])
+            target = int(index) + int(way[slot])
             if n_lanes > 1 and 0 <= target < n_lanes:
-                veh.changeLane(vid, target, REQUEST_STEPS * self.dt)
+                libsumo.vehicle.changeLane(
+                    traffic.ids[slot], target, REQUEST_STEPS * self.dt
+                )
                 self.lane_requests += 1
 
     def retune(self, libsumo: Any, traffic: SumoTraffic, raw: np.ndarray) -> None:

@@ -63,12 +63,14 @@ class SumoTraffic:
             for empty slots.
         speed: float64 (n,) speeds as SUMO holds them.
         unslotted: ids of the vehicles in the network that found no slot.
+        lane_ids: SUMO lane ids of the n occupied slots' vehicles.
     """
 
     ids: list[str]
     packed: np.ndarray
     speed: np.ndarray
     unslotted: list[str]
+    lane_ids: list[str] = dataclasses.field(default_factory=list)
 
     @property
     def n(self) -> int:
@@ -176,7 +178,7 @@ class SumoObserver:
         """
         veh = libsumo.vehicle
         m = self.max_slots
-        ids, unslotted, off_path = [], [], []
+        ids, unslotted, off_path, lane_ids = [], [], [], []
         lanes, routes, avs = [], [], []
         lane_pos, speed, accel, waiting = [], [], [], []
         tracker = self._tracker
@@ -200,6 +202,7 @@ class SumoObserver:
                 unslotted.append(vid)
                 continue
             ids.append(vid)
+            lane_ids.append(lane_id)
             lanes.append(lane)
             routes.append(route)
             avs.append(is_av)
@@ -235,6 +238,7 @@ class SumoObserver:
             packed=table.T.astype(np.float32),
             speed=np.asarray(speed, np.float64),
             unslotted=unslotted,
+            lane_ids=lane_ids,
         )
 
     def observe(self, traffic: SumoTraffic) -> np.ndarray:

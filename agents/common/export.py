@@ -245,7 +245,7 @@ def load_policy_numpy(
                 f"{layout.obs_size} ({layout.observer!r} observer)"
             )
         accel, change = policy_action(arrays, layout, obs, mask, np)
-        return accel, np.where(change, 1.0, np.nan)
+        return accel, networks.lane_column(change, np)
 
     return act
 

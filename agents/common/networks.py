@@ -173,10 +173,11 @@ def env_action(accel: jax.Array, change: jax.Array) -> jax.Array:
     return jnp.stack([accel, lane_column(change).astype(accel.dtype)], axis=-1)
 
 
-def lane_column(change: jax.Array) -> jax.Array:
+def lane_column(change, xp: ModuleType = jnp):
     """The lane column of a binary lane decision (bool or 0/1, (...,)): 1.0
-    (the lane to the left) where it changes, NaN (no request) where not."""
-    return jnp.where(change.astype(bool), 1.0, jnp.nan)
+    (the lane to the left) where it changes, NaN (no request) where not;
+    `xp` is `jax.numpy` or `numpy`."""
+    return xp.where(change.astype(bool), 1.0, xp.nan)
 
 
 def deterministic_action(

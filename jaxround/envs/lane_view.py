@@ -89,17 +89,18 @@ def lane_request(
     return jnp.where(asked, net.lane_index[lane] + direction, -1).astype(jnp.int32)
 
 
-def lane_numbers(net: RingArrays, state: EnvState, params: EnvParams) -> jax.Array:
-    """float (M, 7) the `LANE_COLUMNS` of every slot (0 for empty slots)."""
+def lane_numbers(
+    net: RingArrays, path_length: jax.Array, state: EnvState, params: EnvParams
+) -> jax.Array:
+    """float (M, 7) the `LANE_COLUMNS` of every slot (0 for empty slots);
+    ``path_length`` float (P,) each lane path's length (the step's
+    ``NetArrays.route_length``: its routes are the lane paths)."""
     k, lane, on_lane = locate(net, state.route, state.pos)
     path, active = state.route, state.active
     # every vehicle's front along any path, nan where that path lacks its lane
     front = net.lane_offset[:, lane] + on_lane[None, :]  # (P, M)
     front = jnp.where(active[None, :], front, jnp.nan)
     back = front - params.vehicle.length
-    lanes = jnp.maximum(net.path_lanes, 0)
-    ends = net.path_lane_start + net.lane_length[lanes]
-    path_length = jnp.max(jnp.where(net.path_lanes >= 0, ends, -jnp.inf), axis=1)
     m = path.shape[0]
     columns = []
     for side in (None, RIGHT, LEFT):
@@ -126,18 +127,19 @@ def lane_numbers(net: RingArrays, state: EnvState, params: EnvParams) -> jax.Arr
 def lanes_observation(
     rich: jax.Array,
     net: RingArrays | None,
+    path_length: jax.Array,
     state: EnvState,
     params: EnvParams,
 ) -> jax.Array:
     """The ``"lanes"`` observer's rows, float (M, 24): ``rich`` (M, 17) and
-    the `LANE_COLUMNS`; ``net`` None on one-lane roads (no room counted
-    there: a one-lane road has no lane to change to)."""
+    the `LANE_COLUMNS` (`lane_numbers`); ``net`` None on one-lane roads (no
+    room counted there: a one-lane road has no lane to change to)."""
     if net is None:
         zero = jnp.zeros_like(rich[:, :1])
         own_gap = rich[:, _RICH_LEADER_GAP : _RICH_LEADER_GAP + 1]
         lanes = jnp.concatenate([zero, zero, zero, zero, own_gap, zero, zero], axis=1)
     else:
-        lanes = lane_numbers(net, state, params).astype(rich.dtype)
+        lanes = lane_numbers(net, path_length, state, params).astype(rich.dtype)
     return jnp.concatenate([rich, lanes], axis=1)
 
 
@@ -157,4 +159,4 @@ def observation_by_name(
     rich = observe.rich_observation(net, state, params, route_destination)
     if observer == "rich":
         return rich
-    return lanes_observation(rich, lanes, state, params)
+    return lanes_observation(rich, lanes, net.route_length, state, params)

@@ -128,9 +128,10 @@ def rule_and_value(spec: str) -> tuple[int, float]:
     """The index of the spec's rule in `RULES` and its value, for
     `scripted_command` (raises as `controller_from_spec`, and for a spec
     with a lane rule)."""
-    if "+" in spec or spec.split(":", 1)[0] in LANE_RULES:
+    speed, lane = _parts(spec)
+    if speed is None or lane is not None:
         raise ValueError(f"controller spec {spec!r}: a speed rule alone is needed here")
-    name, value = _parse(spec)
+    name, value = speed
     return list(RULES).index(name), value
 
 

@@ -14,13 +14,13 @@ the first 31 steps within 2.6e-6; 1,027 requests sent (holds included),
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import jax
 import numpy as np
 import pytest
 
+from agents.common.evaluation import with_observer
 from jaxround.apps.drivers import jax_driver, parse_driver
 from jaxround.envs.lane_view import LANE_INDEX
 from jaxround.envs.roundabout import make
@@ -43,9 +43,7 @@ OBS_TOL = 1e-4
 @pytest.fixture(scope="module")
 def runs() -> dict[str, Any]:
     cfg = small_config("two_lane", n_vehicles=60, duration_s=140.0)
-    cfg = dataclasses.replace(
-        cfg, agent=dataclasses.replace(cfg.agent, observer="lanes")
-    )
+    cfg = with_observer(cfg, "lanes")
     schedule = make_schedule(cfg, seed=0, penetration=0.5)
 
     # SUMO: the scripted controller, its rows and SUMO's own lane indices

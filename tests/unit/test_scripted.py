@@ -62,6 +62,15 @@ def commands(spec: str, *rows: np.ndarray) -> np.ndarray:
         ("accel:nan", "'nan' is not finite"),
         ("timed:0", "timed needs a value >= 0.5"),
         ("policy.npz", "unknown controller 'policy.npz'"),
+        # lane rules (`jaxround.envs.scripted_lanes`)
+        ("left", "unknown controller 'left'"),
+        ("gap", r"expected gap:X \(m\)"),
+        ("inner:3", "expected inner, without a value"),
+        ("gap:-1", "gap needs a value >= 0"),
+        ("gap:wide", "'wide' is not a number"),
+        ("eco+middle", "unknown lane rule 'middle'"),
+        ("eco+", "unknown lane rule ''"),
+        ("brake+inner", "unknown controller 'brake'"),
     ],
 )
 def test_bad_specs_name_the_problem(spec: str, message: str) -> None:

@@ -4,13 +4,12 @@ two-lane roundabout, and the request an action turns into."""
 
 from __future__ import annotations
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from agents.common.evaluation import with_observer
 from jaxround.envs.lane_view import (
     GAP_LEFT,
     GAP_OWN,
@@ -30,7 +29,6 @@ from jaxround.envs.scripted import (
 )
 from jaxround.lanes.paths import LEFT
 from jaxround.scenario.schedule import make_schedule
-from sumo_export.scripted import ScriptedControllerFactory
 from tests.conftest import small_config
 
 
@@ -54,26 +52,6 @@ def lane_row(
 def lanes_of(spec: str, *rows: np.ndarray) -> np.ndarray:
     action = jax.jit(controller_from_spec(spec).action)(jnp.asarray(np.stack(rows)))
     return np.asarray(action)
-
-
-@pytest.mark.parametrize(
-    ("spec", "message"),
-    [
-        ("left", "unknown controller 'left'"),
-        ("gap", r"expected gap:X \(m\)"),
-        ("inner:3", "expected inner, without a value"),
-        ("gap:-1", "gap needs a value >= 0"),
-        ("gap:wide", "'wide' is not a number"),
-        ("eco+middle", "unknown lane rule 'middle'"),
-        ("eco+", "unknown lane rule ''"),
-        ("brake+inner", "unknown controller 'brake'"),
-    ],
-)
-def test_bad_lane_specs_name_the_problem(spec: str, message: str) -> None:
-    with pytest.raises(ValueError, match=message):
-        controller_from_spec(spec)
-    with pytest.raises(ValueError, match=message):
-        ScriptedControllerFactory(spec)
 
 
 def test_lane_specs_read_the_lanes_observer() -> None:
@@ -125,9 +103,7 @@ def test_lane_column_thresholds() -> None:
 @pytest.fixture(scope="module")
 def two_lane() -> tuple:
     cfg = small_config("two_lane", n_vehicles=40, duration_s=60.0)
-    cfg = dataclasses.replace(
-        cfg, agent=dataclasses.replace(cfg.agent, observer="lanes")
-    )
+    cfg = with_observer(cfg, "lanes")
     env, params = make(cfg, max_vehicles=8)
     sched = env.schedule_from_numpy(make_schedule(cfg, seed=1, penetration=1.0))
     _, state = jax.jit(env.reset_to_schedule)(sched, params)
@@ -197,9 +173,7 @@ def test_on_one_lane_roads_the_lane_numbers_ask_for_nothing() -> None:
     anywhere, the own gap the rich leader gap; so every lane rule asks
     nothing there."""
     cfg = small_config("milan", n_vehicles=40, duration_s=60.0)
-    cfg = dataclasses.replace(
-        cfg, agent=dataclasses.replace(cfg.agent, observer="lanes")
-    )
+    cfg = with_observer(cfg, "lanes")
     env, params = make(cfg, max_vehicles=16)
     sched = env.schedule_from_numpy(make_schedule(cfg, seed=1, penetration=1.0))
     obs, state = jax.jit(env.reset_to_schedule)(sched, params)
