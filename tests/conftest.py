@@ -86,6 +86,7 @@ def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
 #: one of them ending the run with a long file.
 SLOW_FILES = (
     "tests/study/test_study_browser.py",  # 160: rides in real time
+    "tests/study/test_study_browser_lanes.py",  # 25: a two-lane ride
     "tests/e2e/test_pipeline.py",  # 115
     "tests/e2e/test_notebooks.py",  # 170
     "tests/sumo/test_bench.py",  # 95

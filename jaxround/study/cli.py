@@ -18,6 +18,7 @@ from jaxround.study.settings import (
 )
 
 if TYPE_CHECKING:
+    from jaxround.scenario.config import ScenarioConfig
     from jaxround.study.storage import StudyDatabase
 
 
@@ -42,11 +43,8 @@ def _seconds(text: str) -> float:
 
 
 def cmd_serve(args: argparse.Namespace) -> None:
-    from agents.common.export import check_scenario, load_policy
-    from jaxround.envs.supported import check_single_lane
     from jaxround.scenario.config import load_config
     from jaxround.study.storage import StudyDatabase
-    from sumo_export.controller import policy_observer
 
     settings = StudySettings(
         policy=args.policy,
@@ -66,11 +64,8 @@ def cmd_serve(args: argparse.Namespace) -> None:
     )
     cfg = load_config(settings.config)
     try:
-        check_single_lane(cfg, "the study (its AVs drive a policy)")
         settings.validate(cfg)
-        _, layout = load_policy(settings.policy)
-        policy_observer(settings.policy)
-        check_scenario(layout, cfg)
+        check_av_driver(str(settings.policy), cfg)
         database = StudyDatabase(args.db)
         _check_port(args.host, args.port)
     except (ValueError, FileNotFoundError, OSError) as err:
@@ -102,6 +97,32 @@ def cmd_serve(args: argparse.Namespace) -> None:
         ws_max_size=MAX_MESSAGE_BYTES,
         log_level="warning",
     )
+
+
+def check_av_driver(spec: str, cfg: ScenarioConfig) -> None:
+    """Refuse an AV driver the study cannot run on `cfg`, before it starts.
+
+    A driver is an exported policy, a scripted controller or
+    ``uncontrolled`` (`jaxround.apps.drivers`). A policy must have been
+    trained on `cfg`'s roads and drivers; a policy or a scripted controller
+    reads its observer from the lane paths that the JAX step has
+    (`jaxround.envs.supported.check_jax_lanes`).
+
+    Raises:
+        ValueError: naming the driver and what is wrong.
+    """
+    from jaxround.apps.drivers import parse_driver
+    from jaxround.envs.supported import check_jax_lanes
+
+    driver = parse_driver(spec)
+    if driver.kind == "policy":
+        from agents.common.export import check_scenario, load_policy
+        from sumo_export.controller import policy_observer
+
+        policy_observer(spec)
+        check_scenario(load_policy(spec)[1], cfg)
+    if driver.kind != "uncontrolled":
+        check_jax_lanes(cfg)
 
 
 def _check_port(host: str, port: int) -> None:
@@ -177,9 +198,11 @@ def add_study_parser(sub: argparse._SubParsersAction) -> None:
     p = study.add_parser("serve", help="the study's web app (FastAPI, uvicorn)")
     p.add_argument(
         "--policy",
-        type=Path,
         required=True,
-        help="the exported policy that drives the AVs (policy.npz)",
+        metavar="DRIVER",
+        help="who drives the AVs: an exported policy (policy.npz), a scripted "
+        "controller (e.g. eco, or eco+gap:10 with a lane rule on two-lane "
+        "roads) or uncontrolled (their vType)",
     )
     p.add_argument("--config", default=None, help="scenario YAML or built-in name")
     p.add_argument(

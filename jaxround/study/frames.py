@@ -19,8 +19,10 @@ def ride_frame(sim: RideSimulation, step: int, input_seq: int) -> dict[str, Any]
     (SUMO's front-bumper position, m, and heading, degrees clockwise from
     north); ``ego``: [x, y, angle, speed] or None while it is not on the
     roads (before it enters, between passes, after the last); ``pass`` of
-    ``passes``: the pass being driven. Nothing tells an AV from a human
-    driver.
+    ``passes``: the pass being driven; ``lane``: the ego's lane, its road's
+    lanes, its turn signal and the side its route needs it on
+    (`jaxround.study.ego_lanes.EgoLanes.view`), or None inside a junction
+    or off the roads. Nothing tells an AV from a human driver.
     """
     veh = sim.libsumo.vehicle
     cars: list[float] = []
@@ -41,6 +43,7 @@ def ride_frame(sim: RideSimulation, step: int, input_seq: int) -> dict[str, Any]
         "pass": sim.current_pass,
         "passes": sim.spec.passes,
         "ego": ego,
+        "lane": sim.lanes.view,
         "cars": cars,
         "collisions": sim.collisions,
     }

@@ -5,6 +5,9 @@ Messages are JSON text of at most `MAX_MESSAGE_BYTES`:
 - ``{"type": "start"}``: the participant is ready; the ride begins.
 - ``{"type": "input", "seq": n, "throttle": t, "brake": b}``: pedal
   positions in [0, 1], ``seq`` counting up from 0.
+- ``{"type": "lane", "direction": "left"}`` (or ``"right"``): the turn
+  signal, asking for the lane beside on a two-lane road
+  (`jaxround.study.ego_lanes`).
 - ``{"type": "latency", "seq": n, "ms": x}``: the browser's time from input
   ``n`` to the first frame drawn that reflects it.
 
@@ -35,7 +38,10 @@ FIELDS = {
     "start": {"type"},
     "input": {"type", "seq", "throttle", "brake"},
     "latency": {"type", "seq", "ms"},
+    "lane": {"type", "direction"},
 }
+#: The turn signal's directions.
+LANE_DIRECTIONS = ("left", "right")
 
 
 class BadMessageError(ValueError):
@@ -72,6 +78,11 @@ def parse_message(text: str) -> dict[str, Any]:
         _number(message, "brake", 1.0)
     if kind == "latency":
         _number(message, "ms", MAX_LATENCY_MS)
+    if kind == "lane" and message["direction"] not in LANE_DIRECTIONS:
+        raise BadMessageError(
+            f"lane.direction: {message['direction']!r}, expected one of "
+            f"{list(LANE_DIRECTIONS)}"
+        )
     return message
 
 

@@ -127,7 +127,7 @@ async def _messages_in(
             ride.started = True
             manager.send(ride, checked)
             manager.log(ride, "ride_started")
-        elif checked["type"] == "input" and ride.started:
+        elif checked["type"] in ("input", "lane") and ride.started:
             manager.send(ride, {**checked, "rx_ns": received_ns})
         elif checked["type"] == "latency" and ride.started:
             manager.add_latency(ride, checked["seq"], float(checked["ms"]))

@@ -140,6 +140,7 @@ def create_app(
             "estimate_min": settings.estimated_minutes(),
             "step_s": settings.step_s,
             "pedal_map": pedal_map,
+            "lane_changes": not cfg.network.single_lane,
         }
 
     @app.get("/api/roads")

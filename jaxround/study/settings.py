@@ -34,7 +34,9 @@ class StudySettings:
     """A study's settings (the `jaxround study serve` options).
 
     Attributes:
-        policy: the exported policy that drives the AVs (``.npz``/``.json``).
+        policy: who drives the AVs: an exported policy (``.npz``/``.json``),
+            a scripted controller (``eco``, ``eco+gap:10``) or
+            ``uncontrolled`` (`jaxround.apps.drivers`).
         config: the scenario, a YAML path or a built-in name.
         max_participants: rides (SUMO processes) at once; the next
             participant who asks for a ride gets the busy page.
@@ -65,7 +67,7 @@ class StudySettings:
             (`jaxround.study.pedals`).
     """
 
-    policy: Path
+    policy: str | Path
     config: str = "milan"
     max_participants: int = 4
     warmup_s: float = 120.0

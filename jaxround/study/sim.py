@@ -8,8 +8,9 @@ SUMO writes it into the route file like any other vehicle
 (`sumo_export.traffic.SumoObserver`) sees it as a human driver, which it is.
 
 SUMO steps at ``step_s`` (0.1 s: 10 Hz) instead of the scenario's ``dt_s``;
-the human drivers' and AVs' action step stays 0.5 s (their vTypes' action
-step length, `sumo_export.scenario.action_step`), and the policy acts every
+on one-lane roads the human drivers' and AVs' action step stays 0.5 s (their
+vTypes' action step length, `sumo_export.scenario.action_step`; on two-lane
+roads it is the step, `ride_config`), and the policy acts every
 ``dt_s / step_s`` steps through `sumo_export.controller.PolicyController`,
 as it was trained.
 
@@ -19,12 +20,13 @@ same id, among the traffic that went on meanwhile (SUMO's ``vehicle.add``),
 so the AVs' observer keeps seeing it as the same human driver. The ride
 ends after the last pass or at its time limit.
 
-The participant drives the ego's longitudinal motion only: the pedals set an
+The participant drives the ego's longitudinal motion: the pedals set an
 acceleration, its integral is commanded with ``vehicle.setSpeed`` and the ego
-follows its lanes (no steering). Its speed mode is 32: all of SUMO's checks
-off, right of way inside junctions included (MSVehicle's speed mode bits,
-SUMO's TraCI `setSpeedMode`), so a misjudged gap becomes a collision, which
-SUMO detects (``--collision.check-junctions``, overlap only:
+follows its lanes (no steering); on two-lane roads a turn signal asks SUMO
+for the lane beside (`jaxround.study.ego_lanes`). Its speed mode is 32: all
+of SUMO's checks off, right of way inside junctions included (MSVehicle's
+speed mode bits, SUMO's TraCI `setSpeedMode`), so a misjudged gap becomes a
+collision, which SUMO detects (``--collision.check-junctions``, overlap only:
 ``--collision.mingap-factor 0``) and reports through
 ``simulation.getCollisions``, and the other drivers react to the ego as to
 any vehicle.
@@ -33,18 +35,21 @@ any vehicle.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from jaxround.scenario.config import ScenarioConfig, load_config
+from jaxround.scenario.config import load_config
 from jaxround.scenario.edges import route_edges
-from jaxround.scenario.schedule import Schedule, make_schedule
+from jaxround.study.ego_lanes import EgoLanes
+from jaxround.study.ride_setup import (
+    EGO_SPEED_FACTOR,
+    RideSpec,
+    ride_config,
+    ride_schedule,
+    sumo_command,
+)
 from sumo_export.scenario import HV_TYPE, route_id, vehicle_id, write_scenario
 
 #: Ego acceleration at full throttle and deceleration at full brake, m/s^2.
@@ -53,100 +58,12 @@ EGO_BRAKE_MPS2 = 8.0
 #: Deceleration with neither pedal (rolling resistance, engine braking), m/s^2.
 EGO_COAST_MPS2 = 0.4
 EGO_MAX_SPEED_MPS = 20.0
-#: The ego's speedFactor: it enters at 60% of the leg's limit (departSpeed max).
-EGO_SPEED_FACTOR = 0.6
 #: SUMO speed mode of the ego: every check off, junction right of way too.
 EGO_SPEED_MODE = 32
 #: Simulated seconds of warm-up between two progress reports.
 PROGRESS_EVERY_S = 5.0
 #: How far ahead the vehicle ahead is looked for, m.
 LEADER_LOOKAHEAD_M = 100.0
-
-
-@dataclass(frozen=True)
-class RideSpec:
-    """What a ride process needs (picklable).
-
-    Attributes:
-        ride_id: the ride's id.
-        config: the scenario (YAML path or built-in name).
-        share: the AVs' share of the background traffic; None for the
-            practice ride (no traffic).
-        policy: the exported policy driving the AVs (None in practice).
-        seed: the schedule's seed.
-        warmup_s: simulated seconds before the ego enters.
-        ride_s: longest ride, seconds of driving.
-        step_s: SUMO's step, s.
-        ego_origin: leg index the ego enters from.
-        ego_destination: leg index it leaves at.
-        passes: times the ego drives its route (each a crossing).
-    """
-
-    ride_id: str
-    config: str
-    share: float | None
-    policy: str | None
-    seed: int
-    warmup_s: float
-    ride_s: float
-    step_s: float
-    ego_origin: int
-    ego_destination: int
-    passes: int = 1
-
-
-def ride_schedule(
-    cfg: ScenarioConfig, spec: RideSpec
-) -> tuple[ScenarioConfig, Schedule, int]:
-    """The background schedule with the ego inserted at the end of the warm-up.
-
-    Returns:
-        (the scenario with one more vehicle, the schedule (N + 1,), the ego's
-        index). The AV count is the background's: the ego is never an AV.
-    """
-    if spec.share is None:  # practice: the ego alone
-        empty = np.zeros(0)
-        base = Schedule(
-            empty,
-            empty.astype(np.int32),
-            empty.astype(np.int32),
-            empty,
-            empty.astype(np.int32),
-            0.0,
-        )
-    else:
-        base = make_schedule(cfg, seed=spec.seed, penetration=spec.share)
-    n = base.n_vehicles
-    k = int(np.searchsorted(base.depart_s, spec.warmup_s, side="right"))
-    schedule = Schedule(
-        depart_s=np.insert(base.depart_s, k, spec.warmup_s),
-        origin=np.insert(base.origin, k, spec.ego_origin).astype(np.int32),
-        destination=np.insert(base.destination, k, spec.ego_destination).astype(
-            np.int32
-        ),
-        speed_factor=np.insert(base.speed_factor, k, EGO_SPEED_FACTOR),
-        av_rank=np.insert(base.av_rank, k, n).astype(np.int32),
-        penetration=base.n_av / (n + 1),
-    )
-    demand = dataclasses.replace(cfg.demand, n_vehicles=n + 1)
-    return dataclasses.replace(cfg, demand=demand), schedule, k
-
-
-def sumo_command(sumocfg: Path) -> list[str]:
-    """libsumo's command line for a ride: quiet, collisions as overlaps only."""
-    return [
-        "sumo",
-        "-c",
-        str(sumocfg),
-        "--no-step-log",
-        "true",
-        "--no-warnings",
-        "true",
-        "--duration-log.disable",
-        "true",
-        "--collision.mingap-factor",
-        "0",
-    ]
 
 
 def ego_acceleration(throttle: float, brake: float) -> float:
@@ -163,7 +80,8 @@ class RideSimulation:
 
     Attributes:
         trace: one dict per ride step (``ride_steps`` columns without timings).
-        events: collisions, as ``ride_events`` rows.
+        events: collisions and lane changes, as ``ride_events`` rows.
+        lanes: the ego's turn signal and lanes (`EgoLanes`).
         ego_entered_s, ego_arrived_s: simulated times of the first entry and
             of the last pass's exit, None until they happen.
         crossings: crossing time of each pass done (entry to exit), s.
@@ -181,13 +99,13 @@ class RideSimulation:
         self.policy_every = round(cfg.simulation.dt_s / spec.step_s)
         self.controller = None
         if spec.share is not None and spec.policy is not None:
-            from sumo_export.controller import PolicyController
+            from jaxround.apps.drivers import parse_driver, sumo_driver
 
-            self.controller = PolicyController.from_policy(
-                spec.policy, self.cfg, self.schedule
-            )
+            factory = sumo_driver(parse_driver(spec.policy))  # None: uncontrolled
+            if factory is not None:
+                self.controller = factory(self.cfg, self.schedule)
         files = write_scenario(
-            self.cfg.with_overrides(dt_s=spec.step_s), self.schedule, workdir
+            ride_config(self.cfg, spec.step_s), self.schedule, workdir
         )
         self.net_file = files.net
         self.route = route_edges(spec.ego_origin, spec.ego_destination, cfg.n_legs)
@@ -205,6 +123,7 @@ class RideSimulation:
         self.trace: list[dict[str, Any]] = []
         self.events: list[dict[str, Any]] = []
         self._contacts: set[str] = set()
+        self.lanes = EgoLanes(libsumo, self.ego_id, spec.step_s, self.events)
 
     @property
     def ego_on_road(self) -> bool:
@@ -249,9 +168,16 @@ class RideSimulation:
                 max(self.ego_speed + accel * self.spec.step_s, 0.0), EGO_MAX_SPEED_MPS
             )
             self.libsumo.vehicle.setSpeed(self.ego_id, speed)
+            self.lanes.request(self.time_s)
         sumo_ns = self._advance()
         self._read_ego(throttle, brake)
         return sumo_ns
+
+    def ask_lane(self, direction: str) -> None:
+        """The participant's turn signal, ``"left"`` or ``"right"``; ignored
+        while the ego is not on the roads."""
+        if self.ego_on_road:
+            self.lanes.ask(direction, self.time_s)
 
     def act(self) -> int:
         """Let the policy act on the state after the last step, when it is
@@ -285,6 +211,7 @@ class RideSimulation:
                 if self.ego_entered_s is None:
                     self.ego_entered_s = self.time_s
                 veh.setSpeedMode(self.ego_id, EGO_SPEED_MODE)
+                self.lanes.entered()
             x, y = veh.getPosition(self.ego_id)
             self.ego_pose = (x, y, veh.getAngle(self.ego_id))
             self.ego_speed = veh.getSpeed(self.ego_id)
@@ -297,10 +224,12 @@ class RideSimulation:
             )
             row.update(self._gap_to_leader())
             self._record_collisions()
+            self.lanes.read(self.time_s)
         elif self.pass_entered_s is not None and self._ego_arrived():  # it left
             self.crossings.append(round(self.time_s - self.pass_entered_s, 3))
             self.pass_entered_s = None
             self.ego_pose = None
+            self.lanes.view = None
             if len(self.crossings) < self.spec.passes:
                 self._send_ego_again()
             else:
@@ -364,8 +293,9 @@ class RideSimulation:
         return sum(e["kind"] == "collision" for e in self.events)
 
     def ego_lanes(self) -> list[str]:
-        """The lanes of the ego's route (its roads have one lane each)."""
-        return [f"{edge}_0" for edge in self.route]
+        """The lanes of the ego's route, road by road from the right."""
+        count = self.libsumo.edge.getLaneNumber
+        return [f"{edge}_{i}" for edge in self.route for i in range(count(edge))]
 
     def close(self) -> None:
         with contextlib.suppress(Exception):  # a simulation that failed to start

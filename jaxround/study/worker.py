@@ -12,7 +12,8 @@ It talks to the server over a `multiprocessing` pipe, in bytes:
   `jaxround.study.storage.StudyDatabase.save_ride`, last;
 - from the server: JSON ``{"type": "start"}``, ``{"type": "input", "seq",
   "throttle", "brake", "rx_ns"}`` (checked by the server, which adds when it
-  received it) and ``{"type": "stop", "reason"}``.
+  received it), ``{"type": "lane", "direction", "rx_ns"}`` (the turn signal,
+  given to the ride at its next step) and ``{"type": "stop", "reason"}``.
 
 A step is: the latest pedals, SUMO's step, the frame sent, then the
 policy's turn every ``dt_s / step_s`` steps (its commands take effect in the
@@ -135,6 +136,8 @@ def drive(
         if t0 - next_ns > period_ns:
             late += 1
             next_ns = t0
+        if "lane" in pedals:
+            sim.ask_lane(pedals.pop("lane"))
         sumo_ns = sim.step(pedals["throttle"], pedals["brake"])
         frame = frame_bytes(ride_frame(sim, step, pedals["seq"]))
         conn.send_bytes(b"F" + FRAME_HEADER.pack(t0, step) + frame)
@@ -209,6 +212,8 @@ def _wait_until(
             )
             now_pressed = (pedals["throttle"] > 0, pedals["brake"] > 0)
             pressed = pressed or before != now_pressed
+        elif message["type"] == "lane":
+            pedals["lane"] = str(message["direction"])
         elif message["type"] == "stop":
             return str(message.get("reason", "abandoned"))
 

@@ -302,6 +302,8 @@ def test_the_questions_are_worded_as_in_the_paper() -> None:
         ('{"type": "input", "seq": 1, "throttle": NaN, "brake": 0}', "input.throttle"),
         ('{"type": "input", "seq": 1, "throttle": "1", "brake": 0}', "input.throttle"),
         ('{"type": "latency", "seq": 1, "ms": 1e9}', "latency.ms"),
+        ('{"type": "lane", "direction": "up"}', "lane.direction: 'up'"),
+        ('{"type": "lane"}', "missing fields ['direction']"),
         ('{"type": "start"}' + " " * MAX_MESSAGE_BYTES, "bytes"),
     ],
 )
@@ -314,6 +316,8 @@ def test_good_browser_messages_pass() -> None:
     message = parse_message('{"type": "input", "seq": 4, "throttle": 1, "brake": 0.25}')
     assert message == {"type": "input", "seq": 4, "throttle": 1, "brake": 0.25}
     assert parse_message('{"type": "start"}') == {"type": "start"}
+    lane = '{"type": "lane", "direction": "left"}'
+    assert parse_message(lane) == {"type": "lane", "direction": "left"}
 
 
 def test_the_pages_are_package_data_and_load_nothing_from_elsewhere() -> None:

@@ -89,6 +89,8 @@ async function drive(kind) {
       throttleBar: $("pedal-throttle"), brakeBar: $("pedal-brake"),
       status: $("drive-status"), collision: $("collision-flash"),
       wait: $("drive-wait"), waitBar: $("drive-wait-bar"), waitText: $("drive-wait-text"),
+      lane: { box: $("lane-box"), text: $("lane-text"), left: $("lane-left"),
+        right: $("lane-right"), hint: $("lane-hint") },
     }, roads);
   }
   $("drive-label").textContent = kind === "practice" ? "Practice" : `${RIDES[kind].title}: ${result.data.label}`;
@@ -157,6 +159,7 @@ async function main() {
   study = (await api("GET", "/api/study")).data;
   setStudyDefaults(study.pedal_map);
   $("consent-minutes").textContent = String(study.estimate_min);
+  $("lane-keys").hidden = !study.lane_changes;
   pedalPanel = new PedalPanel({
     box: $("pedal-box"), status: $("pedal-status"), setup: $("pedal-setup"), reset: $("pedal-reset"),
     wizard: $("pedal-wizard"), step: $("pedal-step"), cancel: $("pedal-cancel"), note: $("pedal-note"),

@@ -13,8 +13,8 @@
 // drawn with fewer pixels.
 
 import { bonnet, buildWorld, carMesh, placeCar, placeDriverCamera, THREE } from "./scene.js";
-import { drawPedals, drawSpeedometer, Minimap } from "./hud.js";
-import { readPads } from "./pedals.js";
+import { drawLane, drawPedals, drawSpeedometer, Minimap } from "./hud.js";
+import { readPads, readSignalButtons } from "./pedals.js";
 
 const PEDAL_PRESS_START = 0.3;   // a key press puts the pedal here at once
 const PEDAL_RISE_PER_S = 1.2;    // holding it presses harder
@@ -23,6 +23,8 @@ const SEND_EVERY_MS = 50;        // pedal updates while a key is held
 const COUNTDOWN_S = 2;
 const THROTTLE_KEYS = new Set(["ArrowUp", "KeyW"]);
 const BRAKE_KEYS = new Set(["ArrowDown", "KeyS", "Space"]);
+const SIGNAL_KEYS = { ArrowLeft: "left", KeyA: "left", ArrowRight: "right", KeyD: "right" };
+const BLINK_MS = 400;            // the turn signal's arrow: on, off
 
 const LATENCY_KEPT = 2000;        // measured inputs kept on the page
 const RESOLUTION_EVERY = 30;      // display frames between two resolution checks
@@ -126,6 +128,7 @@ class Ride {
     this.prev = null; this.cur = null;
     this.started = false; this.over = false;
     this.collisions = 0; this.egoLanes = [];
+    this.signalButtons = { left: false, right: false };
     this.ready = false;
   }
 
@@ -196,6 +199,12 @@ class Ride {
   }
 
   key(event) {
+    const direction = SIGNAL_KEYS[event.code];
+    if (direction) {
+      event.preventDefault();
+      if (event.type === "keydown" && !event.repeat) this.signal(direction);
+      return;
+    }
     const throttle = THROTTLE_KEYS.has(event.code), brake = BRAKE_KEYS.has(event.code);
     if (!throttle && !brake) return;
     event.preventDefault();
@@ -205,6 +214,11 @@ class Ride {
     this.keyPedals[pedal] = event.type === "keydown" ? Math.max(this.keyPedals[pedal], PEDAL_PRESS_START) : 0;
     this.combinePedals();
     this.sendPedals(event.timeStamp);
+  }
+
+  /** The turn signal: ask the server for the lane to the `direction`. */
+  signal(direction) {
+    if (this.started && !this.over) this.send({ type: "lane", direction });
   }
 
   /** Send the pedals; `eventAt` (the key event's time) measures this input. */
@@ -252,6 +266,11 @@ class Ride {
         : Math.max(0, v - PEDAL_FALL_PER_S * dt);
     }
     this.padPedals = readPads();  // pedals.js
+    const buttons = readSignalButtons();
+    for (const direction of ["left", "right"]) {
+      if (buttons[direction] && !this.signalButtons[direction]) this.signal(direction);
+    }
+    this.signalButtons = buttons;
     this.combinePedals();
     const moved = Math.abs(this.pedals.throttle - this.sent.throttle) > 0.02
       || Math.abs(this.pedals.brake - this.sent.brake) > 0.02;
@@ -317,6 +336,7 @@ class Ride {
     drawSpeedometer(c.el.speedometer, ego ? ego.speed : 0);
     drawPedals(c.el.throttleBar, c.el.brakeBar, this.pedals.throttle, this.pedals.brake);
     c.minimap.draw(cars, ego);
+    drawLane(c.el.lane, this.cur && ego ? this.cur.f.lane : null, now % (2 * BLINK_MS) < BLINK_MS);
     if (this.started && this.cur) {
       const f = this.cur.f;
       const left = Math.max(0, this.info.ride_s - (f.step + 1) * this.periodMs / 1000);

@@ -36,6 +36,20 @@ export function drawPedals(throttleBar, brakeBar, throttle, brake) {
   brakeBar.style.height = `${Math.round(brake * 100)}%`;
 }
 
+/** The lane indicator on two-lane roads: the ego's lane of the road's
+ *  lanes (from the right), the turn signal's arrow and, where the lane ends
+ *  before the route's next road, the side to move to. `lane` is a frame's
+ *  [index, lanes, signal, route side], or null (inside a junction). */
+export function drawLane(el, lane, blinkOn) {
+  if (!lane || lane[1] < 2) { el.box.hidden = true; return; }
+  const [index, lanes, signal, side] = lane;
+  el.box.hidden = false;
+  el.text.textContent = `lane ${index + 1} of ${lanes}`;
+  el.left.classList.toggle("on", signal > 0 && blinkOn);
+  el.right.classList.toggle("on", signal < 0 && blinkOn);
+  el.hint.textContent = side < 0 ? "your exit: move right" : side > 0 ? "your route: move left" : "";
+}
+
 /** A north-up map of the lanes, the ego's route, the cars and the ego. */
 export class Minimap {
   constructor(canvas, roads) {

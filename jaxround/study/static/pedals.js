@@ -82,6 +82,18 @@ export function readPads(pads = connectedPads()) {
   return out;
 }
 
+/** The turn-signal buttons of the connected pads with the standard mapping
+ *  (4: left shoulder, 5: right shoulder): {left, right}, pressed or not. */
+export function readSignalButtons(pads = connectedPads()) {
+  const out = { left: false, right: false };
+  for (const pad of pads) {
+    if (pad.mapping !== "standard") continue;
+    out.left = out.left || Boolean(pad.buttons[4]?.pressed);
+    out.right = out.right || Boolean(pad.buttons[5]?.pressed);
+  }
+  return out;
+}
+
 export function describeInput(input) {
   const r = (x) => x.toFixed(2);
   return `${input.kind} ${input.index} (rest ${r(input.rest)}, pressed ${r(input.pressed)})`;
