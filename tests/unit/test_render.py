@@ -3,7 +3,8 @@
 The states are written by hand (no step is compiled): vehicles on every kind
 of lane of Milan's network, AVs and human drivers, some halting, some due but
 not yet inserted. `rollout_states` is checked on a stand-in environment whose
-step only counts; the notebook test runs it on the real one.
+step only counts; the notebook test runs it on the real one. The two-lane
+roundabout's vehicles are placed on its lane paths directly.
 """
 
 from __future__ import annotations
@@ -290,3 +291,30 @@ def test_rollout_states_keeps_every_kth_state(env: RoundaboutEnv) -> None:
     np.testing.assert_allclose(again.pos[:, 0], [100, 101, 102])
     with pytest.raises(ValueError, match="n_steps"):
         episode_movie.rollout_states(fake, params, key, n_steps=2, every=3)
+
+
+def test_two_lane_roads_are_drawn_lane_by_lane() -> None:
+    """On the two-lane roundabout a vehicle's lane path is its route, so a
+    vehicle on the inner ring lane is drawn on that lane's shape, a lane
+    width (3.2 m) nearer the centre than one beside it on the outer lane,
+    and every lane of the network is drawn."""
+    env = make("two_lane", max_vehicles=SLOTS)[0]
+    net = env.network
+    ids = list(net.lane_ids)
+    outer = ids.index("ring_1_0")
+    routes, pos = [], []
+    for lane in (outer, ids.index("ring_1_1")):
+        r, k = np.argwhere(net.route_lanes == lane)[0]
+        routes.append(r)
+        pos.append(net.route_lane_start[r, k] + 0.5 * net.lane_length[lane] + 2.5)
+    centre, _, _ = render.vehicle_boxes(env, np.array(routes), np.array(pos))
+    middle = np.concatenate(net.lane_shapes).mean(0)
+    radius = np.linalg.norm(centre - middle, axis=1)
+    assert 2.9 < radius[0] - radius[1] < 3.5, radius
+    for point, name in zip(centre, ("ring_1_0", "ring_1_1"), strict=True):
+        assert distance_to_polyline(net.lane_shapes[ids.index(name)], point) < 0.05
+    figure, ax = plt.subplots()
+    render.draw_network(env, ax)
+    drawn_roads = ax.collections[0].get_paths()
+    assert len(drawn_roads) == len(ids) and any(i.endswith("_1") for i in ids)
+    plt.close(figure)
