@@ -32,9 +32,9 @@ Schema (``jaxround-study/1``; times are UTC, ISO 8601):
     ride_id, step, time_s (simulated), on_road (ego in the network), x_m,
     y_m, speed_mps, accel_mps2, throttle, brake (pedals 0-1), gap_m,
     ttc_s, sumo_ms, policy_ms, frame_ms, delay_ms.
-``ride_events``: collisions and hard brakings.
-    ride_id, time_s, kind ('collision', 'hard_braking'), other (class of the
-    other vehicle in a collision: 'hv' or 'av'), detail.
+``ride_events``: collisions, hard brakings and the ego's lane changes.
+    ride_id, time_s, kind ('collision', 'hard_braking', 'lane_change'),
+    other (class of the other vehicle in a collision: 'hv' or 'av'), detail.
 ``browser_latency``: ride_id, seq (input number), latency_ms.
 """
 
