@@ -55,8 +55,8 @@ class EgoLanes:
         view: what the browser shows, ``[index, lanes, signal, route_side]``
             (the ego's lane index from the right, the road's lanes, the
             signal, and the side the ego must move to before the lane ends:
-            -1 right, +1 left, 0 none, `route_side`), or None inside a junction or off
-            the roads.
+            -1 right, +1 left, 0 none, `route_side`), or None inside a
+            junction or off the roads.
     """
 
     def __init__(
