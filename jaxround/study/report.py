@@ -103,9 +103,19 @@ def answer_tables(answers: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     return tables
 
 
-def telemetry(rides: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+def telemetry(
+    rides: list[dict[str, Any]], lane_changes: dict[str, Counter] | None = None
+) -> dict[str, dict[str, Any]]:
     """Per scenario (20%, 80%): rides, min TTC, hard brakings, crossing time,
-    collisions, and the server's delay."""
+    collisions, the server's delay and, on two-lane roads, the ego's lane
+    changes per ride (asked for, made for the route).
+
+    Args:
+        rides: the ``rides`` rows.
+        lane_changes: per ride id, its lane changes counted as ``"asked"``
+            and ``"route"`` (`lane_change_counts`).
+    """
+    lane_changes = lane_changes or {}
     out = {}
     for share in (LOW_SHARE, HIGH_SHARE):
         mine = [
@@ -129,11 +139,28 @@ def telemetry(rides: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
             "collisions": int(sum(values("collisions"))),
             "delay_median_ms": _median(values("delay_median_ms")),
             "delay_p99_ms_max": max(values("delay_p99_ms"), default=None),
+            "lane_changes_asked_mean": _mean(
+                [lane_changes.get(r["ride_id"], Counter())["asked"] for r in mine]
+            ),
+            "lane_changes_route_mean": _mean(
+                [lane_changes.get(r["ride_id"], Counter())["route"] for r in mine]
+            ),
             "per_ride": {
                 k: values(k) for k in ("min_ttc_s", "hard_brakings", "crossing_time_s")
             },
         }
     return out
+
+
+def lane_change_counts(events: list[dict[str, Any]]) -> dict[str, Counter]:
+    """Per ride id, its ``lane_change`` events counted as ``"asked"`` (the
+    participant's turn signal) and ``"route"`` (SUMO's, for the exit)."""
+    counts: dict[str, Counter] = {}
+    for e in events:
+        if e["kind"] == "lane_change":
+            why = "asked" if (e["detail"] or "").endswith("asked for") else "route"
+            counts.setdefault(e["ride_id"], Counter())[why] += 1
+    return counts
 
 
 def participant_status(
@@ -185,7 +212,12 @@ def build_report(database: StudyDatabase) -> dict[str, Any]:
         "tables": answer_tables(
             [a for a in answers if status[a["participant_id"]] == "completed"]
         ),
-        "telemetry": telemetry(rides),
+        "telemetry": telemetry(
+            rides,
+            lane_change_counts(
+                database.rows("ride_events", "WHERE kind = 'lane_change'")
+            ),
+        ),
     }
 
 
@@ -226,18 +258,31 @@ def tables_markdown(report: dict[str, Any]) -> str:
 
 
 def telemetry_markdown(report: dict[str, Any]) -> str:
+    """The telemetry table; with lane-change columns where a ride changed lanes."""
+    rows = report["telemetry"]
+    lanes = any(
+        t["lane_changes_asked_mean"] or t["lane_changes_route_mean"]
+        for t in rows.values()
+    )
+    extra = " lane changes per ride: asked / for the route |" if lanes else ""
     lines = [
         "| AVs | rides | arrived | min TTC median (s) | lowest min TTC (s) | "
         "hard brakings per ride | crossing time (s) | collisions | server "
-        "delay median (ms) | worst ride's p99 (ms) |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        f"delay median (ms) | worst ride's p99 (ms) |{extra}",
+        "|---|---|---|---|---|---|---|---|---|---|" + ("---|" if lanes else ""),
     ]
-    for share, t in report["telemetry"].items():
+    for share, t in rows.items():
+        lane_cell = (
+            f" {_f(t['lane_changes_asked_mean'])} / "
+            f"{_f(t['lane_changes_route_mean'])} |"
+            if lanes
+            else ""
+        )
         lines.append(
             f"| {share} | {t['rides']} | {t['arrived']} | {_f(t['min_ttc_s_median'])}"
             f" | {_f(t['min_ttc_s_lowest'])} | {_f(t['hard_brakings_mean'])} | "
             f"{_f(t['crossing_time_s_mean'])} | {t['collisions']} | "
-            f"{_f(t['delay_median_ms'])} | {_f(t['delay_p99_ms_max'])} |"
+            f"{_f(t['delay_median_ms'])} | {_f(t['delay_p99_ms_max'])} |{lane_cell}"
         )
     return "\n".join(lines) + "\n"
 

@@ -20,7 +20,12 @@ from jaxround.apps.cli.main import main
 from jaxround.scenario.config import load_config
 from jaxround.study.protocol import MAX_MESSAGE_BYTES, BadMessageError, parse_message
 from jaxround.study.questions import PAPER_COUNTS, paper_option, worded_questions
-from jaxround.study.report import build_report, sign_test, tables_markdown
+from jaxround.study.report import (
+    build_report,
+    sign_test,
+    tables_markdown,
+    telemetry_markdown,
+)
 from jaxround.study.settings import StudySettings
 from jaxround.study.storage import (
     COLUMNS,
@@ -200,6 +205,35 @@ def test_telemetry_counts_completed_rides_per_scenario(tmp_path: Path) -> None:
     assert low["hard_brakings_mean"] == 1.5
     assert low["crossing_time_s_mean"] == 25.0
     assert (high["rides"], high["arrived"], high["min_ttc_s_median"]) == (1, 0, None)
+
+
+def test_telemetry_counts_the_egos_lane_changes_on_two_lane_roads(
+    tmp_path: Path,
+) -> None:
+    database = StudyDatabase(tmp_path / "lanes.sqlite")
+    pid, _ = database.add_participant(blind=False)
+    asked = {"kind": "lane_change", "other": None,
+             "detail": "left to in_0_1, asked for"}  # fmt: skip
+    route = {"kind": "lane_change", "other": None,
+             "detail": "right to ring_2_0, for the route"}  # fmt: skip
+    crash = {"kind": "collision", "other": "hv", "detail": "collision: ..."}
+    record = ride("a", pid, 0.2, "arrived")
+    events = (asked, asked, route, crash)
+    record["events"] = [{"time_s": t, **e} for t, e in enumerate(events)]
+    database.save_ride(record)
+    database.save_ride(ride("b", pid, 0.2, "arrived"))  # kept its lanes
+    report = build_report(database)
+    low = report["telemetry"]["20%"]
+    assert (low["lane_changes_asked_mean"], low["lane_changes_route_mean"]) == (
+        1.0,
+        0.5,
+    )
+    table = telemetry_markdown(report)
+    assert "asked / for the route" in table and "| 1.00 / 0.50 |" in table
+    one_lane = StudyDatabase(tmp_path / "one_lane.sqlite")
+    pid, _ = one_lane.add_participant(blind=False)
+    one_lane.save_ride(ride("c", pid, 0.2, "arrived"))
+    assert "lane changes" not in telemetry_markdown(build_report(one_lane))
 
 
 def test_report_and_export_commands_write_files_and_refuse_to_overwrite(
