@@ -3,12 +3,10 @@
 `MSEdgeControl::changeLanes` runs `MSLaneChanger::laneChange` edge by edge;
 within an edge the vehicles decide front to back (`jaxround.lanes.changer`
 does one straight road). Here every vehicle is on a lane path
-(`jaxround.lanes.paths`) and the edges are many: one loop takes the
+(`jaxround.lanes.paths`) and the edges are many: one `lax.scan` takes the
 vehicles edge by edge (in lane-table order; SUMO takes them in the order
 its lanes became occupied, which only matters where a neighbour is found
 on another edge), front to back within an edge, ties to the right lane.
-Only the slots with a vehicle take turns (a `lax.while_loop` as long as
-the roundabout has vehicles; batched, as long as the fullest one has).
 
 What a candidate sees, as `MSLaneChanger::getRealLeader`/`getRealFollower`
 find it (SUMO's source as read in docs/lc2013-map.md section 2):
@@ -353,26 +351,6 @@ def change_lanes(
 
     none = -jnp.ones(net.lane_length.shape[0], jnp.int32)
     init = (ctx.lane, jnp.zeros(m, bool), none, none, memory)
-    # only the vehicles on the roads take turns (they come first in the
-    # order), as SUMO's changer walks the vehicles on its lanes; a slot with
-    # no vehicle keeps its lane and its memory (zeros, `LaneChanger`)
-    shapes = jax.eval_shape(lambda c: take(c, jnp.int32(0))[1], init)
-    outs = jax.tree.map(lambda x: jnp.zeros((m, *x.shape), x.dtype), shapes)
-    turns = jnp.sum(veh.active)
-
-    def body(loop):
-        n, carry, outs = loop
-        i = ctx.order[n]
-        carry, out = take(carry, i)
-        outs = jax.tree.map(lambda buf, x: buf.at[i].set(x), outs, out)
-        return n + 1, carry, outs
-
-    _, (_, _, _, _, memory), outcome = jax.lax.while_loop(
-        lambda loop: loop[0] < turns, body, (jnp.int32(0), init, outs)
-    )
-    idle = ~veh.active
-    outcome = outcome._replace(
-        to_lane=jnp.where(idle, ctx.lane, outcome.to_lane),
-        to_path=jnp.where(idle, veh.path, outcome.to_path),
-    )
+    (_, _, _, _, memory), outs = jax.lax.scan(take, init, ctx.order)
+    outcome = jax.tree.map(lambda x: jnp.zeros_like(x).at[ctx.order].set(x), outs)
     return changes(ctx, outcome), memory
