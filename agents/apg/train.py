@@ -140,6 +140,7 @@ class APGTrainer(BatchTrainer):
             hidden=tuple(config.hidden),
             activation=config.activation,
             centralised=config.centralised,
+            lane_choices=self.lane_choices,
         )
         self.lr_schedule = optax.linear_schedule(
             config.lr, 0.0 if config.anneal_lr else config.lr, config.num_updates

@@ -30,7 +30,6 @@ from agents.common import networks
 from jaxround.core.params import EnvParams
 from jaxround.core.state import EnvState
 from jaxround.envs.roundabout import make
-from jaxround.envs.supported import check_single_lane
 from jaxround.envs.wrappers import auto_reset
 from jaxround.scenario.config import ConfigError
 
@@ -139,6 +138,7 @@ class BatchTrainer:
         scenario: its training scenario.
         env: the environment; `env_params` its B parameter sets, leaves (B, ...).
         obs_size: numbers per observation row, D.
+        lane_choices: the network's lane choices C (`networks.lane_choices_for`).
         sharding: the batch's sharding over the local devices.
     """
 
@@ -147,7 +147,10 @@ class BatchTrainer:
         self.config = config
         self.sharding = batch_sharding(config.n_envs)
         self.scenario = config.training_scenario()
-        check_single_lane(self.scenario, "training")
+        #: lane choices of the network: 3 on two-lane roads (none, left, right)
+        self.lane_choices = networks.lane_choices_for(
+            not self.scenario.network.single_lane
+        )
         self.env, params = make(
             self.scenario, max_vehicles=config.max_vehicles, episode_s=config.episode_s
         )

@@ -73,7 +73,7 @@ def switched_policy(
         del key
         accel, change = policy_action(arrays, layout, obs, state.active, jnp)
         accel = jnp.where(use_policy, accel, NO_COMMAND)
-        change = jnp.where(use_policy, change, False)
+        change = jnp.where(use_policy, change, 0)
         return jnp.stack([accel, lane_column(change)], axis=-1).astype(jnp.float32)
 
     return act

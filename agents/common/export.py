@@ -6,9 +6,9 @@
 
 The ``.npz`` holds the actor's weights (no pickles); the ``.json`` its layout
 (layer widths, activation, centralised input, observer and its size, the
-bounds of the acceleration command, the scenario it was trained on). The
-exported policy acts deterministically: the mean command clipped to the
-bounds, and the likelier lane choice. `policy_action` computes it with
+bounds of the acceleration command, the lane choices, the scenario it was
+trained on). The exported policy acts deterministically: the mean command
+clipped to the bounds, and the likeliest lane choice. `policy_action` computes it with
 NumPy or JAX from the same code as the trained network (`agents.common.networks`).
 There is no observation normalisation: the observer scales its own features.
 """
@@ -51,6 +51,8 @@ class PolicyLayout:
     action: str = "accel"  # what the action means (the scenario's agent.action)
     scenario: str = ""  # scenario the policy was trained on (name or path)
     scenario_fingerprint: str = ""  # its roads and drivers (ScenarioConfig method)
+    # lane choices C: 2 (keep, left), 3 on two-lane roads (none, left, right)
+    lane_choices: int = networks.N_LANE_CHOICES
 
     def array_shapes(self) -> dict[str, tuple[int, ...]]:
         """Name -> shape of every array of the ``.npz``."""
@@ -62,8 +64,8 @@ class PolicyLayout:
             width = h
         shapes["accel_mean/kernel"] = (width, 1)
         shapes["accel_mean/bias"] = (1,)
-        shapes["lane_logits/kernel"] = (width, networks.N_LANE_CHOICES)
-        shapes["lane_logits/bias"] = (networks.N_LANE_CHOICES,)
+        shapes["lane_logits/kernel"] = (width, self.lane_choices)
+        shapes["lane_logits/bias"] = (self.lane_choices,)
         shapes["log_std"] = ()
         return shapes
 
@@ -81,6 +83,7 @@ def policy_layout(trainer: BatchTrainer) -> PolicyLayout:
         action=scenario.agent.action,
         scenario=cfg.scenario,
         scenario_fingerprint=scenario.roads_and_drivers_fingerprint(),
+        lane_choices=trainer.network.lane_choices,
     )
 
 
@@ -166,9 +169,15 @@ def load_policy(path: str | Path) -> tuple[dict[str, np.ndarray], PolicyLayout]:
             action=str(meta.get("action", "accel")),
             scenario=str(meta.get("scenario", "")),
             scenario_fingerprint=str(meta.get("scenario_fingerprint", "")),
+            lane_choices=int(meta.get("lane_choices", networks.N_LANE_CHOICES)),
         )
     except (KeyError, TypeError, IndexError, ValueError) as err:
         raise ValueError(f"{js}: bad layout ({err!r}); fields: {names}") from None
+    choices = (networks.N_LANE_CHOICES, networks.N_LANE_CHOICES_TWO_LANE)
+    if layout.lane_choices not in choices:
+        raise ValueError(
+            f"{js}: lane_choices {layout.lane_choices}, expected one of {choices}"
+        )
     try:
         with np.load(npz, allow_pickle=False) as data:
             arrays = {k: np.asarray(data[k], np.float32) for k in data.files}
@@ -215,7 +224,8 @@ def policy_action(
         xp: `numpy` or `jax.numpy`.
 
     Returns:
-        (accel float (..., M) in `accel_bounds`, change bool (..., M)).
+        (accel float (..., M) in `accel_bounds`, change int (..., M): the
+        lane choice, `agents.common.networks.lane_column`).
     """
     act = networks.activation(layout.activation, xp)
     x = networks.policy_inputs(
@@ -233,8 +243,8 @@ def load_policy_numpy(
 ) -> Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
     """A NumPy-only ``act(obs (M, D), mask (M,)) -> (accel (M,), lane (M,))``;
     ``lane`` is the environment's lane column (`jaxround.envs.lane_view`):
-    1.0 (the lane to the left) where the network changes lanes, NaN (no
-    request) where it keeps."""
+    1.0 (the lane to the left) or -1.0 (right) where the network changes
+    lanes, NaN (no request) where it keeps."""
     arrays, layout = load_policy(path)
 
     def act(obs: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

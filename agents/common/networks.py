@@ -4,7 +4,9 @@ One MLP reads one slot's observation row and gives
 
 - a Gaussian over the acceleration command (mean per slot, one learned,
   state-independent log-std),
-- two logits over the lane-change decision (keep, change),
+- logits over the lane-change decision: two (keep, change to the left: the
+  paper's binary Eq. 2) or, on two-lane roads, three (no request, left,
+  right; `lane_choices_for`),
 - a value.
 
 The forward pass is a pure function of ``(params, obs (M, D), mask (M,))``:
@@ -24,8 +26,16 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-#: Lane-change choices: index 0 keep the lane, 1 change.
+#: Lane-change choices on one-lane roads: index 0 keep the lane (no request),
+#: 1 change (the lane to the left).
 N_LANE_CHOICES = 2
+#: On two-lane roads: 0 no request (LC2013 decides), 1 left, 2 right.
+N_LANE_CHOICES_TWO_LANE = 3
+#: Initial logit of "no request" among three choices (the others 0): at
+#: first 80% of an AV's steps leave the lane to LC2013, as uncontrolled, and
+#: each request is tried in 10%; with equal logits two steps in three would
+#: send a random request.
+NO_REQUEST_LOGIT = math.log(8.0)
 _LOG_2PI = math.log(2.0 * math.pi)
 
 
@@ -35,7 +45,8 @@ class PolicyOutput(NamedTuple):
     Attributes:
         accel_mean: float (..., M) mean acceleration command, m/s^2.
         log_std: float () log standard deviation of the command.
-        lane_logits: float (..., M, 2) logits of keep / change.
+        lane_logits: float (..., M, C) logits of the C lane choices
+            (`lane_column` says what each asks for).
         value: float (..., M) state value of each slot's vehicle.
     """
 
@@ -85,11 +96,13 @@ class ActorCritic(nn.Module):
         hidden: layer widths, e.g. (64, 64).
         activation: "tanh" or "relu".
         centralised: see `policy_inputs`.
+        lane_choices: C, 2 (keep, left) or 3 (no request, left, right).
     """
 
     hidden: Sequence[int]
     activation: str = "tanh"
     centralised: bool = False
+    lane_choices: int = N_LANE_CHOICES
 
     @nn.compact
     def __call__(self, obs: jax.Array, mask: jax.Array) -> PolicyOutput:
@@ -105,7 +118,10 @@ class ActorCritic(nn.Module):
             )
         accel_mean = nn.Dense(1, kernel_init=init(0.01), name="accel_mean")(a)[..., 0]
         lane_logits = nn.Dense(
-            N_LANE_CHOICES, kernel_init=init(0.01), name="lane_logits"
+            self.lane_choices,
+            kernel_init=init(0.01),
+            bias_init=_lane_bias_init,
+            name="lane_logits",
         )(a)
         log_std = self.param("log_std", nn.initializers.zeros, ())
 
@@ -118,6 +134,13 @@ class ActorCritic(nn.Module):
         return PolicyOutput(accel_mean, log_std, lane_logits, value)
 
 
+def _lane_bias_init(key: jax.Array, shape: tuple[int, ...], dtype=jnp.float32):
+    """Zeros for two choices (as before); `NO_REQUEST_LOGIT` first for three."""
+    del key
+    bias = jnp.zeros(shape, dtype)
+    return bias.at[0].set(NO_REQUEST_LOGIT) if shape[-1] == 3 else bias
+
+
 # --------------------------------------------------------------------------- actions
 
 
@@ -127,7 +150,7 @@ def log_prob(out: PolicyOutput, accel: jax.Array, change: jax.Array) -> jax.Arra
     Args:
         out: the network's output.
         accel: float (..., M) acceleration commands (before the env clips them).
-        change: int (..., M) lane choice, 0 or 1.
+        change: int (..., M) lane choice, 0 to C - 1.
     """
     z = (accel - out.accel_mean) * jnp.exp(-out.log_std)
     gauss = -0.5 * z**2 - out.log_std - 0.5 * _LOG_2PI
@@ -168,16 +191,24 @@ def sample(
 
 def env_action(accel: jax.Array, change: jax.Array) -> jax.Array:
     """The environment's action, float (..., M, 2): command and lane column
-    (`jaxround.envs.lane_view`): "change" asks for the lane to the left,
-    "keep" asks nothing (NaN: LC2013 decides)."""
+    (`jaxround.envs.lane_view`) of the lane choice (`lane_column`)."""
     return jnp.stack([accel, lane_column(change).astype(accel.dtype)], axis=-1)
 
 
 def lane_column(change, xp: ModuleType = jnp):
-    """The lane column of a binary lane decision (bool or 0/1, (...,)): 1.0
-    (the lane to the left) where it changes, NaN (no request) where not;
+    """The lane column of a lane choice (int 0, 1, 2 or bool, (...,)): 1.0
+    (ask for the lane to the left) for choice 1 (True), -1.0 (the lane to
+    the right) for choice 2, NaN (no request: LC2013 decides) for 0 (False);
     `xp` is `jax.numpy` or `numpy`."""
-    return xp.where(change.astype(bool), 1.0, xp.nan)
+    change = xp.asarray(change).astype(xp.int32)
+    return xp.where(change == 1, 1.0, xp.where(change == 2, -1.0, xp.nan))
+
+
+def lane_choices_for(multi_lane: bool) -> int:
+    """C for a network on a scenario with (`multi_lane`) or without two-lane
+    roads: 3 (no request, left, right) or 2 (keep, change: the paper's
+    binary decision, whose "change" asks for the lane to the left)."""
+    return N_LANE_CHOICES_TWO_LANE if multi_lane else N_LANE_CHOICES
 
 
 def deterministic_action(
@@ -187,15 +218,16 @@ def deterministic_action(
 
     Args:
         accel_mean: float (..., M).
-        lane_logits: float (..., M, 2).
+        lane_logits: float (..., M, C).
         bounds: (lowest, highest) command, m/s^2.
         xp: `numpy` or `jax.numpy`.
 
     Returns:
-        (accel float (..., M), change bool (..., M)).
+        (accel float (..., M), change int (..., M): the likeliest lane
+        choice, the lowest index among equals).
     """
     accel = xp.clip(accel_mean, bounds[0], bounds[1])
-    change = lane_logits[..., 1] > lane_logits[..., 0]
+    change = xp.argmax(lane_logits, axis=-1).astype(xp.int32)
     return accel, change
 
 
@@ -214,6 +246,7 @@ def init_params(
 
 __all__ = [
     "N_LANE_CHOICES",
+    "N_LANE_CHOICES_TWO_LANE",
     "ActorCritic",
     "PolicyOutput",
     "activation",
@@ -221,6 +254,7 @@ __all__ = [
     "entropy",
     "env_action",
     "init_params",
+    "lane_choices_for",
     "lane_column",
     "log_prob",
     "n_inputs",

@@ -130,6 +130,7 @@ class Trainer(BatchTrainer):
             hidden=tuple(config.hidden),
             activation=config.activation,
             centralised=config.centralised,
+            lane_choices=self.lane_choices,
         )
         n_adam_steps = config.num_updates * config.epochs * config.minibatches
         self.lr_schedule = optax.linear_schedule(

@@ -3,8 +3,10 @@
 The lane action (``action[:, 1]``, the paper's Eq. 2 change-lane decision
 generalised): above 0.5 asks for the lane to the left, below -0.5 for the
 lane to the right, anything between holds the AV's lane, and NaN asks
-nothing (LC2013 decides, as for an uncontrolled AV; a trained network's
-binary decision is "left" or NaN). It is sent as SUMO's controller sends
+nothing (LC2013 decides, as for an uncontrolled AV). A trained network
+sends NaN, left or right (three lane choices, on two-lane roads), or NaN
+and left (the paper's binary decision, on one-lane roads;
+`agents.common.networks.lane_column`). It is sent as SUMO's controller sends
 it (`sumo_export.controller`): ``vehicle.changeLane(id, index + d, dt / 2)``
 with d in {-1, 0, +1} and the index of the lane the AV is on when it is
 commanded, for the next lane-change phase only

@@ -237,6 +237,65 @@ def test_centralised_input_is_the_mean_of_the_others() -> None:
     assert lone[0, 1] == 0.0
 
 
+def test_lane_choices_and_their_column() -> None:
+    """Two choices (one-lane roads): keep (no request) or change (the lane
+    to the left), as a bool or 0/1; three (two-lane roads): no request,
+    left, right. The policy's mode is the likeliest choice, the lowest
+    index among equals."""
+    assert networks.lane_choices_for(False) == 2
+    assert networks.lane_choices_for(True) == 3
+    for xp in (np, jnp):
+        column = np.asarray(networks.lane_column(xp.asarray([0, 1, 2]), xp))
+        assert np.isnan(column[0]) and column[1] == 1.0 and column[2] == -1.0
+        as_bool = np.asarray(networks.lane_column(xp.asarray([False, True]), xp))
+        assert np.isnan(as_bool[0]) and as_bool[1] == 1.0
+    logits = np.array([[0.0, 1.0, 2.0], [3.0, 1.0, 2.0], [1.0, 1.0, 0.0]])
+    _, change = networks.deterministic_action(np.zeros(3), logits, (-1.0, 1.0), np)
+    np.testing.assert_array_equal(change, [2, 0, 0])
+    network = networks.ActorCritic(hidden=(8,), lane_choices=3)
+    params = networks.init_params(network, jax.random.PRNGKey(0), 5, 4)
+    out = network.apply(params, jnp.ones((4, 5)), jnp.ones(4, bool))
+    assert out.lane_logits.shape == (4, 3)
+    _, change, _ = networks.sample(out, jax.random.PRNGKey(1))
+    assert set(np.asarray(change).tolist()) <= {0, 1, 2}
+
+
+def test_three_lane_choices_round_trip(tmp_path: Path) -> None:
+    """A two-lane policy's three lane logits are exported, read back and
+    acted on: the NumPy policy asks for the lane its likeliest choice names;
+    a policy file of before the field reads as two choices; another count
+    is refused, naming it."""
+    m, d = 5, 24
+    network = networks.ActorCritic(hidden=(8,), lane_choices=3)
+    params = networks.init_params(network, jax.random.PRNGKey(2), d, m)
+    params = jax.tree.map(lambda x: x * 20.0, params)
+    layout = PolicyLayout("lanes", d, (8,), "tanh", False, (-4.5, 2.6), lane_choices=3)
+    _, js = export_policy(params, layout, tmp_path / "three")
+    assert json.loads(js.read_text())["arrays"]["lane_logits/kernel"] == [8, 3]
+    arrays, loaded = load_policy(js)
+    assert loaded == layout
+    obs = np.random.default_rng(0).normal(size=(m, d)).astype(np.float32)
+    mask = np.ones(m, bool)
+    out = network.apply(params, jnp.asarray(obs), jnp.asarray(mask))
+    choice = np.argmax(np.asarray(out.lane_logits), axis=-1)
+    _, lane = load_policy_numpy(js)(obs, mask)
+    expected = np.where(choice == 1, 1.0, np.where(choice == 2, -1.0, np.nan))
+    np.testing.assert_array_equal(lane, expected)
+    two = networks.ActorCritic(hidden=(8,))
+    old = PolicyLayout("rich", 3, (8,), "tanh", False, (-4.0, 2.0))
+    _, old_js = export_policy(
+        networks.init_params(two, jax.random.PRNGKey(0), 3, 2), old, tmp_path / "old"
+    )
+    meta = json.loads(old_js.read_text())
+    del meta["lane_choices"]
+    old_js.write_text(json.dumps(meta))
+    assert load_policy(old_js)[1].lane_choices == 2
+    meta["lane_choices"] = 4
+    old_js.write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match="lane_choices 4, expected one of"):
+        load_policy(old_js)
+
+
 # --------------------------------------------------------------------------- export
 
 
@@ -269,8 +328,8 @@ def test_export_round_trip(tmp_path: Path, activation: str, centralised: bool) -
         accel, lane = act(obs[i], mask[i])  # lane: 1.0 (left) or NaN (none)
         assert accel.dtype == np.float32
         np.testing.assert_allclose(accel, np.asarray(accel_jax[i]), atol=1e-5)
-        np.testing.assert_array_equal(lane == 1.0, np.asarray(change_jax[i]))
-        assert np.isnan(lane[~np.asarray(change_jax[i])]).all()
+        np.testing.assert_array_equal(lane == 1.0, np.asarray(change_jax[i]) == 1)
+        assert np.isnan(lane[np.asarray(change_jax[i]) == 0]).all()
     assert np.any(np.asarray(accel_jax) == 2.6) or np.any(np.asarray(accel_jax) < 0)
     arrays, loaded = load_policy(npz)
     assert loaded == layout
