@@ -98,6 +98,7 @@ SLOW_FILES = (
     "tests/unit/test_ppo.py",  # 60
     "tests/unit/test_demand_gradient.py",  # 40
     "tests/e2e/test_apg.py",  # 40
+    "tests/e2e/test_two_lane_agents.py",  # 150: training, evaluations, a search
     "tests/sumo/test_conflicts_sumo.py",  # 40
     "tests/sumo/test_entry_hold_sumo.py",  # 42
     "tests/sumo/test_drivers.py",  # 60

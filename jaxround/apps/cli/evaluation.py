@@ -61,14 +61,14 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
     from agents.common.evaluation import SUMMARY_COLUMNS, evaluate_policy, summary_rows
     from agents.common.export import load_policy
     from jaxround.analysis.report import markdown_table, write_json, write_tables
-    from jaxround.envs.supported import check_single_lane
+    from jaxround.envs.supported import check_jax_lanes
 
     try:
         _, layout = load_policy(args.policy)
     except (OSError, ValueError) as err:
         raise UsageError(f"--policy {args.policy}: {err}") from None
     cfg = load_config(args.config or layout.scenario or None)
-    check_single_lane(cfg, "evaluating a policy")
+    check_jax_lanes(cfg)  # before SUMO or JAX runs: two-lane exits are SUMO's only
     if args.sim == "sumo" and args.out is None:
         raise UsageError("--sim sumo writes tables and a figure: give --out DIR")
     constant = best_constant_of(args.best_constant, cfg)

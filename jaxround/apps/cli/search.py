@@ -89,9 +89,9 @@ def cmd_search(args: argparse.Namespace) -> None:
         summary,
         sumo_recheck,
     )
-    from jaxround.envs.supported import check_single_lane
+    from jaxround.envs.supported import check_jax_lanes
 
-    check_single_lane(load_config(args.config), "the search of constant AV settings")
+    check_jax_lanes(load_config(args.config))  # before JAX or SUMO runs
     if args.origin_share is not None:
         n_legs = load_config(args.config).n_legs
         if len(args.origin_share) != n_legs:
