@@ -138,7 +138,8 @@ def _lane_bias_init(key: jax.Array, shape: tuple[int, ...], dtype=jnp.float32):
     """Zeros for two choices (as before); `NO_REQUEST_LOGIT` first for three."""
     del key
     bias = jnp.zeros(shape, dtype)
-    return bias.at[0].set(NO_REQUEST_LOGIT) if shape[-1] == 3 else bias
+    three = shape[-1] == N_LANE_CHOICES_TWO_LANE
+    return bias.at[0].set(NO_REQUEST_LOGIT) if three else bias
 
 
 # --------------------------------------------------------------------------- actions
@@ -247,6 +248,7 @@ def init_params(
 __all__ = [
     "N_LANE_CHOICES",
     "N_LANE_CHOICES_TWO_LANE",
+    "NO_REQUEST_LOGIT",
     "ActorCritic",
     "PolicyOutput",
     "activation",
