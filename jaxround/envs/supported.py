@@ -29,9 +29,9 @@ def check_single_lane(cfg: ScenarioConfig, what: str = "this command") -> None:
         raise ConfigError(
             f"{', '.join(keys)}: {what} needs one lane on every road for now. "
             "On two-lane roads `jaxround train --config ppo_two_lane`, "
-            "`jaxround evaluate` and `jaxround parity --config ... [--controller "
-            "...]` run (human drivers, uncontrolled AVs, scripted lane rules and "
-            "policies, in both simulators)"
+            "`jaxround evaluate`, `jaxround search` and `jaxround parity --config "
+            "... [--controller ...]` run (human drivers, uncontrolled AVs, scripted "
+            "lane rules and policies, in both simulators)"
         )
 
 
