@@ -170,10 +170,11 @@ def test_train_refuses_bad_requests(
     assert "gamma: 2.0" in capsys.readouterr().err
 
 
-def small_scenario(tmp_path: Path) -> Path:
-    d = builtin_dict("milan")
-    d["demand"].update(n_vehicles=12, duration_s=30.0)
-    path = tmp_path / "small.yaml"
+def small_scenario(tmp_path: Path, name: str = "milan", n_vehicles: int = 12) -> Path:
+    """A built-in scenario (its name kept) cut to `n_vehicles` in 30 s."""
+    d = builtin_dict(name)
+    d["demand"].update(n_vehicles=n_vehicles, duration_s=30.0)
+    path = tmp_path / f"small_{name}.yaml"
     path.write_text(yaml.safe_dump(d))
     return path
 

@@ -17,12 +17,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 
 from agents.common.config import load_ppo_config
 from agents.common.export import load_policy
 from jaxround.apps.cli.main import main
-from tests.conftest import builtin_dict
+from tests.e2e.test_train_cli import small_scenario
 from tests.unit.test_ppo import tiny_config
 
 
@@ -38,14 +37,6 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     argv = ["train", "--config", str(folder / "tiny.yaml"), "--out", str(out)]
     assert main([*argv, "--no-progress"]) == 0
     return out
-
-
-def small_two_lane(folder: Path) -> Path:
-    d = builtin_dict("two_lane")
-    d["demand"].update(n_vehicles=16, duration_s=30.0)
-    path = folder / "small_two_lane.yaml"
-    path.write_text(yaml.safe_dump(d))
-    return path
 
 
 def test_training_on_two_lanes_gives_three_lane_choices(run: Path) -> None:
@@ -69,7 +60,7 @@ def test_evaluate_a_two_lane_policy_in_jax_and_sumo(
     """Both simulators drive every vehicle of a small two-lane demand to its
     exit with the policy, with uncontrolled AVs and with the scenario's best
     constant (configs/best_constant/two_lane.json, the scenario's name)."""
-    scenario = small_two_lane(tmp_path)
+    scenario = small_scenario(tmp_path, "two_lane", n_vehicles=16)
     argv = [
         "evaluate", "--policy", str(run), "--config", str(scenario),
         "--penetrations", "50", "--max-vehicles", "16", "--json",
