@@ -89,10 +89,10 @@ def run_schedule(
         tripinfo = out / "tripinfo.xml"
         stats = out / "statistics.xml"
         ssm = out / "ssm.xml"
-        lane_changes = out / "lanechange.xml"
+        lane_change_file = out / "lanechange.xml"
         args = sumo_arguments(files.sumocfg, tripinfo, stats)
         args += cfg.safety.sumo_options(str(ssm))
-        args += ["--lanechange-output", str(lane_changes)]
+        args += ["--lanechange-output", str(lane_change_file)]
         lane_data = None if cfg.network.single_lane else out / "lanedata.xml"
         if lane_data is not None:
             args += ["--lanedata-output", str(lane_data)]
@@ -112,7 +112,9 @@ def run_schedule(
             max_drac_mps2=conflicts.max_drac_mps2,
         )
         collisions, emergency, teleports = _read_statistics(stats)
-        n_changes = sum(1 for _ in ET.parse(lane_changes).getroot().iter("change"))
+        per_vehicle = read_lane_changes(lane_change_file, schedule.n_vehicles)
+        if not cfg.network.single_lane:
+            records = dataclasses.replace(records, lane_changes=per_vehicle)
         lane_seconds = None if lane_data is None else read_lane_seconds(lane_data)
     return SumoRun(
         records=records,
@@ -123,7 +125,7 @@ def run_schedule(
         wall_s=wall,
         queues=queues,
         conflict_types=conflicts.by_type,
-        lane_changes=n_changes,
+        lane_changes=int(per_vehicle.sum()),
         lane_seconds=lane_seconds,
     )
 
@@ -138,6 +140,15 @@ def read_lane_seconds(path: Path) -> dict[str, float]:
             lane.get("sampledSeconds", 0.0)
         )
     return seconds
+
+
+def read_lane_changes(path: Path, n_vehicles: int) -> np.ndarray:
+    """int (N,): the lane changes of each scheduled vehicle in SUMO's
+    ``--lanechange-output`` (one ``<change id=...>`` line per change)."""
+    counts = np.zeros(n_vehicles, np.int64)
+    for change in ET.parse(path).getroot().iter("change"):
+        counts[int(change.get("id")[1:])] += 1
+    return counts
 
 
 def sumo_arguments(sumocfg: Path, tripinfo: Path, stats: Path) -> list[str]:

@@ -98,7 +98,9 @@ def class_metrics(
     mean_crossing_time_s, co2_g_per_veh, fuel_g_per_veh, consumption_score,
     emission_score, throughput_veh_per_h, mean_insertion_delay_s`` and the
     near-conflicts (`safety_metrics`: ``conflicts_per_1000_veh, min_ttc_s,
-    max_drac_mps2``, over every vehicle of the class); "all" also has
+    max_drac_mps2``, over every vehicle of the class) and
+    ``lane_changes_per_veh`` (over the compared vehicles; None on roads of
+    one lane, `VehicleRecords.lane_changes`); "all" also has
     ``queue_mean_veh`` and ``queue_max_veh`` (lists, one per leg).
     Means over an empty class are None.
 
@@ -151,6 +153,9 @@ def class_metrics(
                 (records.depart_s - records.scheduled_depart_s)[mask & delayed]
             ),
             **safety_metrics(records, mask),
+            "lane_changes_per_veh": None
+            if records.lane_changes is None
+            else _mean(records.lane_changes[mean_over].astype(np.float64)),
         }
     out["all"]["queue_mean_veh"] = [float(x) for x in records.queue_mean_veh]
     out["all"]["queue_max_veh"] = [float(x) for x in records.queue_max_veh]

@@ -31,6 +31,14 @@ ABSOLUTE_COLUMNS = (
     "emergency brakings",
     "teleports",
 )
+#: Lane changes per vehicle, where the runs counted them (two-lane roads).
+LANE_CHANGES = "lane_changes_per_veh"
+#: The absolute table's last columns on roads of two lanes.
+LANE_CHANGE_COLUMNS = (
+    "lane changes per veh (all)",
+    "lane changes per veh AV",
+    "lane changes per veh HV",
+)
 #: What the Table 4 title says of Eq. 5's scale.
 SCALE_NOTE = {
     "sweep": "min and max over every run of the table (one scale)",
@@ -60,9 +68,22 @@ def _count(x: Any) -> str:
     return str(int(x)) if float(x).is_integer() else f"{x:.1f}"
 
 
+def has_lane_changes(summary: dict[float, dict[str, Any]]) -> bool:
+    """Whether the runs counted lane changes (roads of two lanes)."""
+    return any(m["all"].get(LANE_CHANGES) is not None for m in summary.values())
+
+
+def absolute_columns(summary: dict[float, dict[str, Any]]) -> tuple[str, ...]:
+    """`ABSOLUTE_COLUMNS`, and `LANE_CHANGE_COLUMNS` where lanes were changed."""
+    lanes = LANE_CHANGE_COLUMNS if has_lane_changes(summary) else ()
+    return ABSOLUTE_COLUMNS + lanes
+
+
 def table_rows(summary: dict[float, dict[str, Any]]) -> dict[str, list[list[str]]]:
-    """Rows of the three tables from ``{penetration: {"all": M, "hv": M, "av": M}}``."""
+    """Rows of the three tables from ``{penetration: {"all": M, "hv": M, "av": M}}``
+    (the absolute table's as `absolute_columns`)."""
     t3, t4, ab = [], [], []
+    lanes = has_lane_changes(summary)
     for p in sorted(summary):
         m = summary[p]
         av, hv, everyone = m["av"], m["hv"], m["all"]
@@ -102,6 +123,8 @@ def table_rows(summary: dict[float, dict[str, Any]]) -> dict[str, list[list[str]
                 _count(m.get("teleports")),
             ]
         )
+        if lanes:
+            ab[-1] += [_cell(c.get(LANE_CHANGES)) for c in (everyone, av, hv)]
     return {"table3": t3, "table4": t4, "absolute": ab}
 
 
@@ -164,7 +187,11 @@ def write_tables(
             "table4", TABLE4_COLUMNS,
             f"Consumption and emission scores, Table 4 (Eq. 5: {SCALE_NOTE[scale]})",
         ),
-        ("absolute", ABSOLUTE_COLUMNS, "Absolute CO2 and fuel, arrivals and safety"),
+        (
+            "absolute", absolute_columns(summary),
+            "Absolute CO2 and fuel, arrivals and safety"
+            + (", lane changes" if has_lane_changes(summary) else ""),
+        ),
     )  # fmt: skip
     for key, cols, title in specs:
         md = note + markdown_table(cols, rows[key])

@@ -7,7 +7,8 @@ README's figures are what the code prints from a results file:
 - Table 3 of the policy in SUMO (`report.table_rows`);
 - the drivers side by side (`beside_rows`): the policy, the best constant
   setting and uncontrolled AVs, in SUMO and JAX, mean crossing time and CO2
-  per vehicle at 0%, 50% and 100% AVs, and the human drivers at 50%;
+  per vehicle at 0%, 50% and 100% AVs, and the human drivers at 50%
+  (near-conflicts where counted, lane changes per vehicle on two lanes);
 - the paired differences (`paired_rows`): policy minus uncontrolled, policy
   minus best constant, best constant minus uncontrolled, with 95% intervals
   over the seeds (`jaxround.analysis.compare`).
@@ -21,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxround.analysis.report import (
+    LANE_CHANGES,
     TABLE3_COLUMNS,
     csv_table,
     markdown_table,
@@ -56,6 +58,9 @@ PAIRED_COLUMNS = (
 CONFLICTS = "conflicts_per_1000_veh"
 BESIDE_CONFLICTS = "conflicts per 1,000 vehicles, 0 / 50 / 100% AVs"
 PAIRED_CONFLICTS = "conflicts per 1,000 vehicles"
+#: Lane changes per vehicle (report.LANE_CHANGES), on roads of two lanes: the
+#: side-by-side table's last column.
+BESIDE_LANE_CHANGES = "lane changes per vehicle, 0 / 50 / 100% AVs"
 
 
 def has_conflicts(result: dict[str, Any]) -> bool:
@@ -68,9 +73,21 @@ def has_conflicts(result: dict[str, Any]) -> bool:
     )
 
 
+def has_lane_changes(result: dict[str, Any]) -> bool:
+    """Whether any run of the results counted lane changes (two-lane roads)."""
+    return any(
+        m.get("all", {}).get(LANE_CHANGES) is not None
+        for sim in SIMULATORS
+        for suffix in DRIVERS
+        for m in (result.get(sim + suffix) or {}).values()
+    )
+
+
 def beside_columns(result: dict[str, Any]) -> tuple[str, ...]:
-    """`BESIDE_COLUMNS`, and the conflicts' where counted."""
-    return BESIDE_COLUMNS + ((BESIDE_CONFLICTS,) if has_conflicts(result) else ())
+    """`BESIDE_COLUMNS`, and the conflicts' and lane changes' where counted."""
+    conflicts = (BESIDE_CONFLICTS,) if has_conflicts(result) else ()
+    lanes = (BESIDE_LANE_CHANGES,) if has_lane_changes(result) else ()
+    return BESIDE_COLUMNS + conflicts + lanes
 
 
 def paired_columns(result: dict[str, Any]) -> tuple[str, ...]:
@@ -85,7 +102,7 @@ def by_share(per_label: dict[str, Any]) -> dict[float, Any]:
 
 def beside_rows(result: dict[str, Any]) -> list[list[str]]:
     """Rows of `beside_columns`: per simulator, each driver present."""
-    conflicts, rows = has_conflicts(result), []
+    conflicts, lanes, rows = has_conflicts(result), has_lane_changes(result), []
     for sim, sim_name in SIMULATORS.items():
         for suffix, driver in DRIVERS.items():
             runs = result.get(sim + suffix)
@@ -105,6 +122,11 @@ def beside_rows(result: dict[str, Any]) -> list[list[str]]:
                 counts = [runs.get(label, {}).get("all", {}).get(CONFLICTS)
                           for label in BESIDE_AT]  # fmt: skip
                 row.append(" / ".join("-" if c is None else f"{c:.0f}" for c in counts))
+            if lanes:
+                changes = [runs.get(label, {}).get("all", {}).get(LANE_CHANGES)
+                           for label in BESIDE_AT]  # fmt: skip
+                cells = ("-" if c is None else f"{c:.2f}" for c in changes)
+                row.append(" / ".join(cells))
             rows.append(row)
     return rows
 

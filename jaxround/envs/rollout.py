@@ -135,4 +135,5 @@ def vehicle_records(env: RoundaboutEnv, state: EnvState) -> VehicleRecords:
         conflicts=conflicts,
         min_ttc_s=np.where(in_conflict, np.asarray(s.stats.min_ttc_s), np.nan),
         max_drac_mps2=np.where(in_conflict, np.asarray(s.stats.max_drac_mps2), np.nan),
+        lane_changes=None if s.lanes is None else np.asarray(s.lanes.changes, np.int64),
     )

@@ -34,6 +34,9 @@ class VehicleRecords:
             (nan: no conflict).
         max_drac_mps2: float (N,) the largest deceleration to avoid a crash
             among them (nan: no conflict).
+        lane_changes: int (N,) lane changes the vehicle made (SUMO's
+            ``--lanechange-output``; `jaxround.envs.lane_changes.LaneState`
+            in JAX); None on roads of one lane.
     """
 
     is_av: np.ndarray
@@ -48,6 +51,7 @@ class VehicleRecords:
     conflicts: np.ndarray | None = None
     min_ttc_s: np.ndarray | None = None
     max_drac_mps2: np.ndarray | None = None
+    lane_changes: np.ndarray | None = None
 
     @property
     def arrived(self) -> np.ndarray:

@@ -70,6 +70,24 @@ def test_empty_class_is_none() -> None:
     assert m["av"]["emission_score"] is None
 
 
+def test_lane_changes_per_vehicle_by_class() -> None:
+    """Over the compared vehicles of each class: the AV that never arrived
+    (3 changes) is left out, as its crossing time is; None on one-lane roads
+    and over a class with none compared."""
+    assert (
+        class_metrics(records(), horizon_s=36.0)["all"]["lane_changes_per_veh"] is None
+    )
+    r = VehicleRecords(**{**records().__dict__, "lane_changes": np.array([1, 2, 0, 3])})
+    m = class_metrics(r, horizon_s=36.0)
+    assert m["all"]["lane_changes_per_veh"] == pytest.approx(1.0)
+    assert m["hv"]["lane_changes_per_veh"] == pytest.approx(1.5)
+    assert m["av"]["lane_changes_per_veh"] == pytest.approx(0.0)
+    only_hv = np.array([True, True, False, False])
+    m = class_metrics(r, horizon_s=36.0, compared=only_hv)
+    assert m["av"]["lane_changes_per_veh"] is None
+    assert m["all"]["lane_changes_per_veh"] == pytest.approx(1.5)
+
+
 def test_mean_over_runs() -> None:
     a = {"all": {"x": 1.0, "y": None, "q": [1.0, 3.0]}}
     b = {"all": {"x": 3.0, "y": 4.0, "q": [3.0, 5.0]}}

@@ -140,3 +140,27 @@ def test_conflicts_get_a_column_where_counted() -> None:
     assert paired_rows(r)[0][-1] == "+33.8 (11.7 to 45.5)"
     assert paired_rows(r)[1][-1] == "-"
     assert "conflicts per 1,000 vehicles" in readme_markdown(r)
+
+
+def test_lane_changes_get_a_column_where_counted(tmp_path: Path) -> None:
+    """Two-lane results: the side-by-side table's last column and the
+    absolute table's three (all, AV, HV); none on one-lane roads."""
+    from jaxround.analysis.report import write_tables
+
+    r = result()
+    assert "lane changes" not in readme_markdown(r)
+    for label, m in r["sumo"].items():
+        for cls, changes in (("all", 1.0), ("av", 1.25), ("hv", 0.75)):
+            m[cls]["lane_changes_per_veh"] = changes + float(label) / 100
+    assert beside_rows(r)[0][-1] == "1.00 / 1.50 / 2.00"
+    assert beside_rows(r)[1][-1] == "- / - / -"  # the best constant counted none
+    assert "lane changes per vehicle, 0 / 50 / 100% AVs" in readme_markdown(r)
+    summary = {float(k) / 100: {**m, "collisions": 0} for k, m in r["sumo"].items()}
+    write_tables(summary, tmp_path, "sumo_policy")
+    lines = (tmp_path / "sumo_policy_absolute.csv").read_text().splitlines()
+    assert lines[0].endswith(
+        "lane changes per veh (all),lane changes per veh AV,lane changes per veh HV"
+    )
+    assert lines[2].endswith(",1.50,1.75,1.25")  # 50% AVs
+    write_tables({p: r["jax"][k] for k, p in (("0", 0.0),)}, tmp_path, "jax")
+    assert "lane changes" not in (tmp_path / "jax_absolute.csv").read_text()

@@ -70,15 +70,16 @@ def cmd_sumo(args: argparse.Namespace) -> None:
         print_json(result)
         return
     from jaxround.analysis.report import (
-        ABSOLUTE_COLUMNS,
         TABLE3_COLUMNS,
+        absolute_columns,
         markdown_table,
         table_rows,
     )
 
-    rows = table_rows({p: result["mean"]})
+    summary = {p: result["mean"]}
+    rows = table_rows(summary)
     print(markdown_table(TABLE3_COLUMNS, rows["table3"]))
-    print(markdown_table(ABSOLUTE_COLUMNS, rows["absolute"]))
+    print(markdown_table(absolute_columns(summary), rows["absolute"]))
 
 
 def cmd_parity(args: argparse.Namespace) -> None:
