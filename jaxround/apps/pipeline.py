@@ -284,11 +284,9 @@ def main_job(
     """
     from agents.common.compilation import enable_compilation_cache
     from agents.run import clear_run, train_to_dir
-    from jaxround.envs.supported import check_single_lane
     from jaxround.scenario.schedule import make_schedule
     from sumo_export.scenario import write_scenario
 
-    check_single_lane(cfg, "the main job (it trains and evaluates a policy)")
     started = time.time()
     write_scenario(cfg, make_schedule(cfg), out / "scenario")
     say(f"[1/4] scenario files in {out / 'scenario'}")
@@ -298,8 +296,9 @@ def main_job(
     record = device_choice.as_comment() if device_choice is not None else ""
     (train_dir / "config.yaml").write_text(record + train_config.to_yaml())
     say(
-        f"[2/4] PPO: {train_config.num_updates} updates of "
-        f"{train_config.n_envs} x {train_config.n_steps} env steps into {train_dir}"
+        f"[2/4] PPO on {train_config.scenario}: {train_config.num_updates} updates "
+        f"of {train_config.n_envs} x {train_config.n_steps} env steps into "
+        f"{train_dir}"
     )
     enable_compilation_cache()
     trained = train_to_dir(train_config, train_dir, progress=progress, say=say)

@@ -3,9 +3,9 @@
 SUMO runs every valid scenario; the JAX environment (`jaxround.envs.roundabout`)
 runs those with one-lane exits (rings and entries of one or two lanes),
 whose two driver classes share the vType numbers it keeps once
-(`jaxround.scenario.config.SHARED_DRIVER_FIELDS`); training and evaluation
-run on them too. The searches of constant AV settings, headroom and the
-main job still need one lane on every road (`check_single_lane`).
+(`jaxround.scenario.config.SHARED_DRIVER_FIELDS`); training, evaluation,
+the search of constant AV settings and the main job run on them too.
+Headroom still needs one lane on every road (`check_single_lane`).
 A config outside that gets a `ConfigError` naming its keys, before netconvert
 or SUMO runs.
 """
@@ -20,16 +20,17 @@ from jaxround.scenario.config import (
 
 
 def check_single_lane(cfg: ScenarioConfig, what: str = "this command") -> None:
-    """What still needs one lane on every road (the searches of constant AV
-    settings, headroom and the main job: their settings and tables are
-    one-lane ones) refuses a config with a two-lane ring, entry or exit,
-    naming those keys and `what` it was asked for."""
+    """What still needs one lane on every road (headroom: its vType sweeps
+    and scripted strategies are one-lane ones) refuses a config with a
+    two-lane ring, entry or exit, naming those keys and `what` it was asked
+    for."""
     keys = cfg.network.multi_lane_keys()
     if keys:
         raise ConfigError(
             f"{', '.join(keys)}: {what} needs one lane on every road for now. "
-            "On two-lane roads `jaxround train --config ppo_two_lane`, "
-            "`jaxround evaluate`, `jaxround search` and `jaxround parity --config "
+            "On two-lane roads `jaxround run --config ...` (the main job), "
+            "`jaxround train --config ppo_two_lane`, `jaxround evaluate`, "
+            "`jaxround search` and `jaxround parity --config "
             "... [--controller ...]` run (human drivers, uncontrolled AVs, scripted "
             "lane rules and policies, in both simulators)"
         )

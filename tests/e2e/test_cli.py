@@ -94,6 +94,32 @@ def test_bad_config_fails_before_work(
         main(["sumo", "--penetration", "140"])
 
 
+def test_main_job_trains_on_the_scenario_it_evaluates(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Without --train-config the main job trains ppo_milan's recipe (one
+    lane) or ppo_two_lane's (two lanes) on --config, a file by its absolute
+    path; a --train-config on other roads is refused before any training,
+    and nothing is written."""
+    from jaxround.apps.cli.training import main_job_training
+    from jaxround.scenario.config import load_config
+
+    train, _ = main_job_training(None, load_config(None), None)
+    assert train.scenario == "milan" and train.observer == ""
+    train, _ = main_job_training("three_leg", load_config("three_leg"), None)
+    assert train.scenario == "three_leg"
+    two = tmp_path / "my_two_lane.yaml"
+    two.write_text(yaml.safe_dump(builtin_dict("two_lane")))
+    train, _ = main_job_training(str(two), load_config(two), None)
+    assert train.scenario == str(two.resolve()) and train.observer == "lanes"
+    out = tmp_path / "out"
+    argv = ["run", "--config", "three_leg", "--train-config", "ppo_milan"]
+    assert main([*argv, "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "trains on scenario 'milan'" in err and "--config 'three_leg'" in err
+    assert not out.exists()
+
+
 def test_bench_flags_fail_before_work(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

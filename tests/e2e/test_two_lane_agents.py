@@ -1,13 +1,15 @@
-"""Training, evaluation and the search on two lanes: `jaxround train` on
-`two_lane`'s roads gives a policy with three lane choices (no request,
-left, right) that `jaxround evaluate` drives in JAX and, through the
-exported controller, in SUMO; the lane choices it makes reach both
-simulators as lane requests; `jaxround search` finds a constant AV setting
-on them.
+"""The main job, training, evaluation and the search on two lanes: `jaxround
+run --config` on `two_lane`'s roads trains a policy with three lane choices
+(no request, left, right) and evaluates it in JAX and, through the exported
+controller, in SUMO, beside uncontrolled AVs and the best constant, lane
+changes per vehicle in its tables; `jaxround evaluate` drives it; the lane
+choices it makes reach both simulators as lane requests; `jaxround search`
+finds a constant AV setting on them.
 
-One tiny run (two roundabouts, two updates of 8 steps, 20 s of demand) is
-shared by the tests; what it learns does not matter here, only that the
-pieces fit. What a full run learns is in docs/two_lane.md.
+One tiny main job (two roundabouts, two updates of 8 steps, 20 s of demand
+in training, 16 vehicles in 30 s in evaluation) is shared by the tests; what
+it learns does not matter here, only that the pieces fit. What a full run
+learns is in docs/two_lane.md.
 """
 
 from __future__ import annotations
@@ -24,19 +26,32 @@ from jaxround.apps.cli.main import main
 from tests.e2e.test_train_cli import small_scenario
 from tests.unit.test_ppo import tiny_config
 
+#: Vehicles of the evaluation's small two-lane scenario.
+N_VEHICLES = 16
+
 
 @pytest.fixture(scope="module")
-def run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def main_job(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """`jaxround run` on a small two-lane scenario (its name kept, so its best
+    constant is two_lane's) with a tiny training config on its roads."""
     folder = tmp_path_factory.mktemp("two_lane")
     cfg = tiny_config(
         scenario="two_lane", observer="lanes", max_vehicles=16, n_envs=2,
         total_env_steps=2 * 8 * 2, demand_window_s=20.0, episode_s=15.0,
     )  # fmt: skip
     (folder / "tiny.yaml").write_text(cfg.to_yaml())
+    scenario = small_scenario(folder, "two_lane", n_vehicles=N_VEHICLES)
     out = folder / "run"
-    argv = ["train", "--config", str(folder / "tiny.yaml"), "--out", str(out)]
+    argv = ["run", "--config", str(scenario), "--out", str(out), "--quick"]
+    argv += ["--train-config", str(folder / "tiny.yaml"), "--workers", "1"]
     assert main([*argv, "--no-progress"]) == 0
     return out
+
+
+@pytest.fixture(scope="module")
+def run(main_job: Path) -> Path:
+    """The main job's training run."""
+    return main_job / "train"
 
 
 def test_training_on_two_lanes_gives_three_lane_choices(run: Path) -> None:
@@ -54,13 +69,39 @@ def test_the_builtin_two_lane_config_reads() -> None:
     assert cfg.training_scenario().network.ring_lanes == 2
 
 
-def test_evaluate_a_two_lane_policy_in_jax_and_sumo(
+def test_main_job_on_two_lanes(main_job: Path) -> None:
+    """Both simulators drive every vehicle to its exit with the policy,
+    uncontrolled AVs and two_lane's best constant, and count lane changes
+    per vehicle and class, shown in the tables."""
+    results = json.loads((main_job / "results.json").read_text())
+    assert results["best_constant"]["source"] == "configs/best_constant/two_lane.json"
+    for sim in ("sumo", "jax"):
+        for suffix in ("", "_uncontrolled", "_best_constant"):
+            runs = results[sim + suffix]
+            assert set(runs) == {"0", "50", "100"}
+            for label, m in runs.items():
+                assert m["all"]["n_arrived"] == N_VEHICLES, (sim + suffix, label)
+                assert m["collisions"] == 0
+                # the vehicles of every two-lane route change lanes at least
+                # once (the roundabout bonus takes them to the left entry lane,
+                # or their exit back to the outer ring lane)
+                assert m["all"]["lane_changes_per_veh"] > 0.5, (sim + suffix, label)
+            assert runs["0"]["av"]["lane_changes_per_veh"] is None  # no AVs
+            assert runs["50"]["av"]["lane_changes_per_veh"] is not None
+    beside = (main_job / "beside.md").read_text()
+    assert "lane changes per vehicle, 0 / 50 / 100% AVs" in beside
+    assert (
+        "lane changes per veh AV" in (main_job / "sumo_policy_absolute.md").read_text()
+    )
+
+
+def test_evaluate_a_two_lane_policy(
     run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """Both simulators drive every vehicle of a small two-lane demand to its
-    exit with the policy, with uncontrolled AVs and with the scenario's best
+    """`jaxround evaluate` drives every vehicle of a small two-lane demand
+    to its exit with the policy, uncontrolled AVs and the scenario's best
     constant (configs/best_constant/two_lane.json, the scenario's name)."""
-    scenario = small_scenario(tmp_path, "two_lane", n_vehicles=16)
+    scenario = small_scenario(tmp_path, "two_lane", n_vehicles=N_VEHICLES)
     argv = [
         "evaluate", "--policy", str(run), "--config", str(scenario),
         "--penetrations", "50", "--max-vehicles", "16", "--json",
@@ -71,15 +112,7 @@ def test_evaluate_a_two_lane_policy_in_jax_and_sumo(
     source = "configs/best_constant/two_lane.json"
     assert report["best_constant"]["source"] == source
     for driver in report["results"].values():
-        assert driver["50"]["all"]["n_arrived"] == 16
-    out = tmp_path / "sumo"
-    argv += ["--sim", "sumo", "--out", str(out), "--workers", "1"]
-    assert main(argv) == 0
-    report = json.loads(capsys.readouterr().out)
-    assert (out / "evaluation.json").exists()
-    sims = ["sumo", "sumo_uncontrolled", "jax", "jax_uncontrolled"]
-    for sim in [*sims, "sumo_best_constant", "jax_best_constant"]:
-        assert report[sim]["50"]["all"]["n_arrived"] == 16, sim
+        assert driver["50"]["all"]["n_arrived"] == N_VEHICLES
 
 
 def test_each_lane_choice_is_its_request(run: Path, tmp_path: Path) -> None:

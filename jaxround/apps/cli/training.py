@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 from jaxround.apps.cli.arguments import (
     UsageError,
@@ -20,19 +21,61 @@ from jaxround.apps.cli.arguments import (
     workers_option,
 )
 from jaxround.apps.pipeline import QUICK_TRAIN_STEPS
-from jaxround.scenario.config import load_config
+from jaxround.scenario.config import ScenarioConfig, load_config
+
+#: The main job's training recipe when no --train-config is given, by the
+#: scenario's lanes: one lane on every road, two somewhere.
+DEFAULT_TRAINING = {False: "ppo_milan", True: "ppo_two_lane"}
+
+
+def main_job_training(
+    config: str | None, cfg: ScenarioConfig, train_config: str | None
+) -> tuple[Any, Any]:
+    """The main job's PPO config and what ``n_envs: auto`` chose for it.
+
+    Without `train_config`, `DEFAULT_TRAINING`'s recipe trains on the
+    scenario evaluated (`config`, a built-in name or a file, kept as an
+    absolute path so that the run's config.yaml resumes from anywhere).
+
+    Raises:
+        UsageError: `train_config` trains on other roads or drivers than
+            `cfg`'s (its policy could not be evaluated there), before any
+            training.
+    """
+    from agents.common.config import PPOConfig, load_trainer_config_and_choice
+
+    source = train_config or DEFAULT_TRAINING[bool(cfg.network.multi_lane_keys())]
+    train_cfg, choice = load_trainer_config_and_choice(PPOConfig, source)
+    if train_config is None and config is not None:
+        path = Path(config)
+        is_file = path.suffix in (".yaml", ".yml") or path.exists()
+        train_cfg = train_cfg.replace(
+            scenario=str(path.resolve()) if is_file else config
+        )
+    trained_on, scenario = train_cfg.base_scenario(), train_cfg.scenario
+    trained_roads = trained_on.roads_and_drivers_fingerprint()
+    if trained_roads != cfg.roads_and_drivers_fingerprint():
+        where = "" if scenario == trained_on.name else f" ({scenario})"
+        raise UsageError(
+            f"--train-config {train_config}: it trains on scenario "
+            f"{trained_on.name!r}{where}, whose roads or drivers "
+            f"are not --config {cfg.name!r}'s, so its policy could not be "
+            "evaluated there; set its `scenario:` to the same scenario, or leave "
+            f"--train-config out ({DEFAULT_TRAINING[False]}'s recipe on one-lane "
+            f"roads, {DEFAULT_TRAINING[True]}'s on two lanes, trained on --config)"
+        )
+    return train_cfg, choice
 
 
 def cmd_run(args: argparse.Namespace) -> None:
-    from agents.common.config import PPOConfig, load_trainer_config_and_choice
     from agents.common.device_batch import CPU_N_ENVS
     from jaxround.apps.pipeline import TRAIN_DIR, headline, main_job
-    from jaxround.envs.supported import check_single_lane
+    from jaxround.envs.supported import check_jax_lanes
 
     cfg = load_config(args.config)
-    check_single_lane(cfg, "the main job (it trains and evaluates a policy)")
+    check_jax_lanes(cfg)  # before anything runs: two-lane exits are SUMO's only
     constant = best_constant_of(args.best_constant, cfg)
-    train_cfg, choice = load_trainer_config_and_choice(PPOConfig, args.train_config)
+    train_cfg, choice = main_job_training(args.config, cfg, args.train_config)
     if args.quick:  # as many updates as a CPU's quick run, whatever the batch
         scale = 1 if choice is None else max(1, choice.n_envs // CPU_N_ENVS)
         train_cfg = train_cfg.replace(
@@ -234,7 +277,9 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     )  # fmt: skip
     p.add_argument(
         "--train-config", default=None,
-        help="PPO config YAML or built-in name (default: ppo_milan)",
+        help="PPO config YAML or built-in name, training on --config's roads "
+        "(default: ppo_milan's recipe, on two-lane roads ppo_two_lane's, "
+        "trained on --config)",
     )  # fmt: skip
     p.add_argument(
         "--total-steps", type=positive_int, default=None,
