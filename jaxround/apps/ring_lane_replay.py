@@ -6,7 +6,7 @@ by step, from SUMO's own traffic.
 
 SUMO 1.28 runs the scenario and its lane changes are recorded step by step
 (`jaxround.apps.ring_lane_record`). The JAX changer (`jaxround.lanes.ring_rounds`,
-the same changes as `jaxround.lanes.ring_changer`) then decides the same
+the same changes as `jaxround.lanes.ring_turns`) then decides the same
 step from SUMO's state before those changes (the changed vehicles put back
 on their lanes, the vehicles inserted in the step left out), carrying its
 own LC2013 memory from step to step. Its changes are compared with SUMO's:

@@ -5,7 +5,7 @@ SUMO's ``MSNet::simulationStep`` moves every vehicle
 (``MSEdgeControl::changeLanes``), then inserts. `LaneChanger` is that middle
 phase for a roundabout with two-lane roads: every vehicle's LC2013 memory
 is reset for the step (``MSLCM_LC2013::prepareStep``, at the end of
-``executeMove``), then `jaxround.lanes.ring_changer` (one vehicle after
+``executeMove``), then `jaxround.lanes.ring_turns` (one vehicle after
 another: cheaper on a CPU) or `jaxround.lanes.ring_rounds` (all at once in
 rounds, the same changes: cheaper on a GPU) moves vehicles between lane
 paths, which are the step's routes (`jaxround.lanes.ring_network`).
@@ -25,7 +25,7 @@ from jaxround.core.dynamics import SpeedPatch
 from jaxround.core.network import CompiledNetwork
 from jaxround.core.state import EnvState
 from jaxround.envs.lane_view import lane_request
-from jaxround.lanes import ring_changer, ring_rounds
+from jaxround.lanes import ring_changer, ring_rounds, ring_turns
 from jaxround.lanes.best_lanes import LookAheadDriver
 from jaxround.lanes.follow import Driver
 from jaxround.lanes.memory import patch_speed, prepare_step
@@ -136,6 +136,26 @@ class LaneChanger:
 
         return patched
 
+    def vehicles(
+        self, state: EnvState, request: jax.Array | None = None
+    ) -> tuple[ring_changer.RingVehicles, Memory]:
+        """The changer's view of ``state`` after the move, and the memory
+        reset for the step (``prepareStep``; an empty slot's cleared)."""
+        active = state.active
+        memory = jax.tree.map(
+            lambda x, z: jnp.where(active.reshape(-1, *([1] * (x.ndim - 1))), x, z),
+            prepare_step(state.lanes.memory), Memory.zeros(active.shape[0]),
+        )  # fmt: skip
+        driver = jax.tree.map(
+            lambda h, a: jnp.where(state.is_av, a, h), self.hv, self.av
+        )
+        veh = ring_changer.RingVehicles(
+            path=state.route, pos=state.pos, speed=state.speed, accel=state.accel,
+            active=active, driver=driver, speed_factor=state.speed_factor,
+            lane_request=request,
+        )  # fmt: skip
+        return veh, memory
+
     def __call__(
         self, state: EnvState, lc: LaneChangeParams, request: jax.Array | None = None
     ) -> tuple[EnvState, jax.Array]:
@@ -152,24 +172,13 @@ class LaneChanger:
         """
         lanes: LaneState = state.lanes
         active = state.active
-        memory = jax.tree.map(
-            lambda x, z: jnp.where(active.reshape(-1, *([1] * (x.ndim - 1))), x, z),
-            prepare_step(lanes.memory), Memory.zeros(active.shape[0]),
-        )  # fmt: skip
-        driver = jax.tree.map(
-            lambda h, a: jnp.where(state.is_av, a, h), self.hv, self.av
-        )
-        veh = ring_changer.RingVehicles(
-            path=state.route, pos=state.pos, speed=state.speed, accel=state.accel,
-            active=active, driver=driver, speed_factor=state.speed_factor,
-            lane_request=request,
-        )  # fmt: skip
+        veh, memory = self.vehicles(state, request)
         if self.in_rounds:
             result, memory, _ = ring_rounds.change_lanes(
                 self.arrays, veh, memory, lc, self.dt
             )
         else:
-            result, memory = ring_changer.change_lanes(
+            result, memory = ring_turns.change_lanes(
                 self.arrays, veh, memory, lc, self.dt
             )
         changed = active & (result.direction != 0)

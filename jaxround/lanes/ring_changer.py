@@ -3,10 +3,12 @@
 `MSEdgeControl::changeLanes` runs `MSLaneChanger::laneChange` edge by edge;
 within an edge the vehicles decide front to back (`jaxround.lanes.changer`
 does one straight road). Here every vehicle is on a lane path
-(`jaxround.lanes.paths`) and the edges are many: one `lax.scan` takes the
-vehicles edge by edge (in lane-table order; SUMO takes them in the order
+(`jaxround.lanes.paths`) and the edges are many: one `lax.while_loop` takes
+the vehicles edge by edge (in lane-table order; SUMO takes them in the order
 its lanes became occupied, which only matters where a neighbour is found
 on another edge), front to back within an edge, ties to the right lane.
+Empty slots take no turn: a turn costs the same whoever takes it, so a
+step costs what its vehicles need, not what its slots hold.
 
 What a candidate sees, as `MSLaneChanger::getRealLeader`/`getRealFollower`
 find it (SUMO's source as read in docs/lc2013-map.md section 2):
@@ -41,10 +43,9 @@ import jax.numpy as jnp
 from jaxround.lanes import ring_neighbours as neighbours
 from jaxround.lanes import traci
 from jaxround.lanes.changer import FAR, _pick
-from jaxround.lanes.decide import Kept, Side, Told, deliver, keep, turn_of
+from jaxround.lanes.decide import Kept, Side, Told, turn_of
 from jaxround.lanes.follow import Driver
 from jaxround.lanes.inform import slow_down_for_blocked
-from jaxround.lanes.memory import after_change
 from jaxround.lanes.params import LaneChangeParams
 from jaxround.lanes.ring_neighbours import RingArrays, Scene
 from jaxround.lanes.views import Ego, LaneQ, Memory, Neighbour, push_advice
@@ -274,6 +275,18 @@ def turn(ctx: Context, i: jax.Array, view: View, memory: Memory) -> Outcome:
         right=sides[0], left=sides[1], lc=lc_i, dt=dt, request=request,
         request_s=traci.REQUEST_STEPS * dt,
     )  # fmt: skip
+    # an empty slot's turn leaves nothing: no messages, and its memory as it
+    # was (cleared), so that a vehicle inserted into it starts as SUMO's new
+    # vehicles do (MSLCM_LC2013's constructor: zeros, no advices)
+    told = told._replace(
+        speed=jnp.where(active_i, told.speed, jnp.nan),
+        bits=jnp.where(active_i, told.bits, 0),
+    )
+    as_was = Kept(
+        memory.speed_gain_probability[i], memory.keep_right_probability[i],
+        memory.look_ahead_speed[i], view.advices,
+    )  # fmt: skip
+    kept = jax.tree.map(lambda new, old: jnp.where(active_i, new, old), kept, as_was)
     # no changer on its edge (one lane, or changing not allowed): SUMO
     # registers it unchanged without asking the model
     decides = active_i & (net.change_path[p, k] >= 0).any()
@@ -308,49 +321,3 @@ def changes(ctx: Context, outcome: Outcome) -> RingChanges:
         path, pos, outcome.to_lane, outcome.direction, outcome.change_state,
         outcome.sight,
     )  # fmt: skip
-
-
-def change_lanes(
-    net: RingArrays,
-    veh: RingVehicles,
-    memory: Memory,
-    lc: LaneChangeParams,
-    dt: float,
-) -> tuple[RingChanges, Memory]:
-    """Every vehicle's lane change for one step, one turn after another in
-    SUMO's order (`jaxround.lanes.ring_rounds` gets the same at once).
-
-    Args:
-        veh: the vehicles after this step's move.
-        memory: their LC2013 memory after `jaxround.lanes.memory.prepare_step`.
-        lc: lane-change parameters (scalars or (M,)).
-    """
-    ctx = context(net, veh, lc, dt)
-    m = veh.pos.shape[0]
-    slots = jnp.arange(m)
-
-    def take(carry, i):
-        lane, done, last_blocked, first_blocked, mem = carry
-        own = ctx.lane[i]
-        view = View(lane, done, last_blocked[own], first_blocked[own],
-                    mem.state[i], mem.advices[i])  # fmt: skip
-        out = turn(ctx, i, view, mem)
-        mem = keep(deliver(mem, out.told), i, out.kept)
-        mem = mem.replace(state=mem.state.at[i].set(out.state))
-        mem = after_change(mem, slots == jnp.where(out.direction != 0, i, -1))
-        for side in (0, 1):
-            target, blocked = out.target[side], out.blocked[side]
-            last_blocked = jnp.where(blocked, last_blocked.at[target].set(i),
-                                     last_blocked)  # fmt: skip
-            first_blocked = jnp.where(
-                blocked & (first_blocked[target] < 0),
-                first_blocked.at[target].set(i), first_blocked,
-            )  # fmt: skip
-        lane = lane.at[i].set(out.to_lane)
-        return (lane, done.at[i].set(True), last_blocked, first_blocked, mem), out
-
-    none = -jnp.ones(net.lane_length.shape[0], jnp.int32)
-    init = (ctx.lane, jnp.zeros(m, bool), none, none, memory)
-    (_, _, _, _, memory), outs = jax.lax.scan(take, init, ctx.order)
-    outcome = jax.tree.map(lambda x: jnp.zeros_like(x).at[ctx.order].set(x), outs)
-    return changes(ctx, outcome), memory

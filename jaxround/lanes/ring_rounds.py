@@ -1,5 +1,5 @@
 """Every vehicle's lane-change turn at once, in rounds until nothing moves:
-the changes, memory and sight of `jaxround.lanes.ring_changer.change_lanes`
+the changes, memory and sight of `jaxround.lanes.ring_turns.change_lanes`
 without its M turns one after another.
 
 A turn depends only on the turns before it in SUMO's order
@@ -39,6 +39,7 @@ from jaxround.lanes.ring_changer import (
     context,
     turn,
 )
+from jaxround.lanes.ring_turns import scan_gradient
 from jaxround.lanes.views import N_ADVICES, Memory
 
 
@@ -80,14 +81,15 @@ def _same(old: tuple[jax.Array, ...], new: tuple[jax.Array, ...]) -> jax.Array:
     return jnp.all(jnp.stack([jnp.all(a == b) for a, b in zip(old, new, strict=True)]))
 
 
-def change_lanes(
+def turns_in_rounds(
     net: RingArrays,
     veh: RingVehicles,
     memory: Memory,
     lc: LaneChangeParams,
     dt: float,
 ) -> tuple[RingChanges, Memory, jax.Array]:
-    """`jaxround.lanes.ring_changer.change_lanes`, in rounds.
+    """`jaxround.lanes.ring_turns.change_lanes`, in rounds (`change_lanes`:
+    with the gradient of the turns one by one, `ring_turns.scan_gradient`).
 
     Returns:
         (changes, memory, rounds): as the sequential changer's (advices in
@@ -194,3 +196,8 @@ def inbox(told: Told, counted: jax.Array, m: int) -> tuple[jax.Array, jax.Array]
     index = jnp.minimum(start[:, None] + jnp.arange(n_advices), speed.shape[0] - 1)
     mine = sorted_to[index] == slots[:, None]
     return bits, jnp.where(mine, sorted_speed[index], jnp.nan)
+
+
+#: `turns_in_rounds` with the gradient of the turns one by one:
+#: ``change_lanes(net, veh, memory, lc, dt) -> (RingChanges, Memory, rounds)``.
+change_lanes = scan_gradient(turns_in_rounds)

@@ -1,0 +1,110 @@
+"""The two-lane changer's turns (`jaxround.lanes.ring_turns`): the loop over
+the vehicles gives what the scan over every slot gives, its gradient is the
+scan's, and a vehicle inserted into a slot starts with LC2013's memory
+cleared, as a new vehicle in SUMO does."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxround.envs.rollout import uncontrolled_policy
+from jaxround.envs.roundabout import make
+from jaxround.lanes import ring_turns
+from jaxround.lanes.views import Memory
+from jaxround.scenario.schedule import make_schedule
+
+#: Steps run (0.5 s each): the ring has filled and vehicles come and go.
+STEPS = 480
+
+
+def is_fresh(memory: Memory) -> jax.Array:
+    """bool (M,): the slot's memory is a new vehicle's (`Memory.zeros`)."""
+    return (
+        (memory.state == 0)
+        & (memory.speed_gain_probability == 0)
+        & (memory.keep_right_probability == 0)
+        & (memory.look_ahead_speed == 0)
+        & jnp.all(jnp.isnan(memory.advices), axis=-1)
+    )
+
+
+@pytest.fixture(scope="module")
+def episode():
+    """Four minutes of two_lane.yaml's human drivers: each step's state
+    after it (stacked), and how many vehicles entered a slot in it and did
+    so with memory left in the slot."""
+    env, params = make("two_lane", max_vehicles=56)
+    policy = uncontrolled_policy(env)
+    schedule = env.schedule_from_numpy(make_schedule(env.cfg, seed=0))
+    obs, state = env.reset_to_schedule(schedule, params)
+
+    def step(carry, key):
+        obs, before = carry
+        act_key, step_key = jax.random.split(key)
+        action = policy(obs, before, act_key)
+        obs, after, *_ = env.step(step_key, before, action, params)
+        entered = after.active & ~before.active
+        stale = entered & ~is_fresh(after.lanes.memory)
+        return (obs, after), (after, jnp.sum(entered), jnp.sum(stale))
+
+    keys = jax.random.split(jax.random.PRNGKey(0), STEPS)
+    run = jax.jit(lambda carry, keys: jax.lax.scan(step, carry, keys)[1])
+    return env, params, run((obs, state), keys)
+
+
+def test_a_new_vehicle_starts_with_cleared_memory(episode) -> None:
+    _, _, (states, entered, stale) = episode
+    assert int(entered.sum()) > 100
+    assert int(stale.sum()) == 0
+    # and an empty slot keeps nothing between vehicles
+    empty = ~states.active
+    assert not bool(jnp.any(empty & ~is_fresh(states.lanes.memory)))
+
+
+def test_the_vehicles_turns_are_every_slots_turns(episode) -> None:
+    """On 200 steps' states, the loop and the scan give the same changes and
+    memory, and the same gradient (the loop's is the scan's, recomputed)."""
+    env, params, (states, _, _) = episode
+    changer = env.lane_changer
+    lc = params.lane_change
+    dt = changer.dt
+    loop = jax.jit(ring_turns.turns_of_vehicles, static_argnums=4)
+    scan = jax.jit(ring_turns.turns_of_every_slot, static_argnums=4)
+    moved = 0
+    for t in range(STEPS - 200, STEPS):
+        state = jax.tree.map(lambda x, t=t: x[t], states)
+        veh, memory = changer.vehicles(state)
+        assert 0 < int(veh.active.sum()) < veh.active.shape[0]
+        got, want = (
+            loop(changer.arrays, veh, memory, lc, dt),
+            scan(changer.arrays, veh, memory, lc, dt),
+        )
+        (changes, after), (changes_all, after_all) = got, want
+        # what an empty slot saw is no one's business: only the vehicles'
+        on = np.asarray(veh.active)
+        for a, b in zip(
+            jax.tree.leaves(changes.sight), jax.tree.leaves(changes_all.sight),
+            strict=True,
+        ):  # fmt: skip
+            np.testing.assert_array_equal(np.asarray(a)[on], np.asarray(b)[on])
+        mine = (changes._replace(sight=None), after)
+        every = (changes_all._replace(sight=None), after_all)
+        for a, b in zip(jax.tree.leaves(mine), jax.tree.leaves(every), strict=True):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        moved += int(jnp.sum(changes.direction != 0))
+    assert moved > 0
+
+    def summary(change, speed):
+        changes, after = change(
+            changer.arrays, veh._replace(speed=speed), memory, lc, dt
+        )
+        return jnp.sum(changes.pos) + jnp.sum(after.look_ahead_speed)
+
+    grad_loop = jax.jit(jax.grad(lambda v: summary(ring_turns.change_lanes, v)))
+    grad_scan = jax.jit(jax.grad(lambda v: summary(ring_turns.turns_of_every_slot, v)))
+    g = np.asarray(grad_loop(veh.speed))
+    np.testing.assert_allclose(g, np.asarray(grad_scan(veh.speed)), rtol=1e-6)
+    assert np.any(g[np.asarray(veh.active)] != 0)
