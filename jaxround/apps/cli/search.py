@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 from jaxround.apps.cli.arguments import (
@@ -143,6 +144,15 @@ def cmd_search(args: argparse.Namespace) -> None:
         f"{out / 'best_constant.json'} (copy it to configs/best_constant/"
         f"{result['scenario']}.json for the main job)"
     )
+    worse = result["constant_vs_vtype"]["rel_diff"]
+    if worse > 0:  # a baseline weaker than doing nothing flatters a policy
+        print(
+            f"warning: the best constant's objective is {100 * worse:.1f}% worse "
+            "than the AVs' own vType on the evaluation seeds: the vType is the "
+            "stronger baseline. Search longer (--population, --generations) "
+            "before using best_constant.json as a baseline",
+            file=sys.stderr,
+        )
 
 
 def conflict_limit(text: str) -> str | float | None:
