@@ -1,7 +1,8 @@
 """The two-lane changer's turns (`jaxround.lanes.ring_turns`): the loop over
-the vehicles gives what the scan over every slot gives, its gradient is the
-scan's, and a vehicle inserted into a slot starts with LC2013's memory
-cleared, as a new vehicle in SUMO does."""
+the vehicles gives what the scan over every slot gives, its gradient (and
+the rounds', `jaxround.lanes.ring_rounds`) is the scan's, and a vehicle
+inserted into a slot starts with LC2013's memory cleared, as a new vehicle
+in SUMO does."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import pytest
 
 from jaxround.envs.rollout import uncontrolled_policy
 from jaxround.envs.roundabout import make
-from jaxround.lanes import ring_turns
+from jaxround.lanes import ring_rounds, ring_turns
 from jaxround.lanes.views import Memory
 from jaxround.scenario.schedule import make_schedule
 
@@ -103,8 +104,12 @@ def test_the_vehicles_turns_are_every_slots_turns(episode) -> None:
         )
         return jnp.sum(changes.pos) + jnp.sum(after.look_ahead_speed)
 
-    grad_loop = jax.jit(jax.grad(lambda v: summary(ring_turns.change_lanes, v)))
+    def in_rounds(*args):
+        return ring_rounds.change_lanes(*args)[:2]
+
     grad_scan = jax.jit(jax.grad(lambda v: summary(ring_turns.turns_of_every_slot, v)))
-    g = np.asarray(grad_loop(veh.speed))
-    np.testing.assert_allclose(g, np.asarray(grad_scan(veh.speed)), rtol=1e-6)
-    assert np.any(g[np.asarray(veh.active)] != 0)
+    want = np.asarray(grad_scan(veh.speed))
+    assert np.any(want[np.asarray(veh.active)] != 0)
+    for change in (ring_turns.change_lanes, in_rounds):  # the GPUs' changer too
+        grad = jax.jit(jax.grad(lambda v, change=change: summary(change, v)))
+        np.testing.assert_allclose(np.asarray(grad(veh.speed)), want, rtol=1e-6)
