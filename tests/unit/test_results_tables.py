@@ -113,14 +113,19 @@ def test_readme_block_is_replaced_and_checked(tmp_path: Path) -> None:
         readme_block("no markers")
 
 
-def test_readme_tables_are_the_committed_results() -> None:
-    # the main job's results.json of the default run, kept in the repository
+@pytest.mark.parametrize(
+    ("page", "results"),
+    [("README.md", "docs/results/milan.json"),
+     ("docs/two_lane.md", "docs/results/two_lane.json")],
+)  # fmt: skip
+def test_readme_tables_are_the_committed_results(page: str, results: str) -> None:
+    # the main job's results.json of the default run (and of two_lane's),
+    # kept in the repository
     root = Path(__file__).resolve().parents[2]
-    results = root / "docs/results/milan.json"
-    tables = readme_markdown(json.loads(results.read_text()))
-    assert readme_block((root / "README.md").read_text()) == tables, (
-        "README.md's results block is not docs/results/milan.json's: run python "
-        "-m jaxround.apps.readme_tables docs/results/milan.json --write README.md"
+    tables = readme_markdown(json.loads((root / results).read_text()))
+    assert readme_block((root / page).read_text()) == tables, (
+        f"{page}'s results block is not {results}'s: run python -m "
+        f"jaxround.apps.readme_tables {results} --write {page}"
     )
 
 
