@@ -3,12 +3,13 @@
 `MSEdgeControl::changeLanes` runs `MSLaneChanger::laneChange` edge by edge;
 within an edge the vehicles decide front to back (`jaxround.lanes.changer`
 does one straight road). Here every vehicle is on a lane path
-(`jaxround.lanes.paths`) and the edges are many: one `lax.while_loop` takes
-the vehicles edge by edge (in lane-table order; SUMO takes them in the order
-its lanes became occupied, which only matters where a neighbour is found
-on another edge), front to back within an edge, ties to the right lane.
-Empty slots take no turn: a turn costs the same whoever takes it, so a
-step costs what its vehicles need, not what its slots hold.
+(`jaxround.lanes.paths`) and the edges are many: the turns
+(`jaxround.lanes.ring_turns`, one loop) take the vehicles edge by edge (in
+lane-table order, `context`; SUMO takes them in the order its lanes became
+occupied, which only matters where a neighbour is found on another edge),
+front to back within an edge, ties to the right lane, empty slots last.
+This module is one turn (`turn`) and what the step makes of the turns
+(`changes`).
 
 What a candidate sees, as `MSLaneChanger::getRealLeader`/`getRealFollower`
 find it (SUMO's source as read in docs/lc2013-map.md section 2):
