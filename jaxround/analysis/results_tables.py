@@ -63,30 +63,32 @@ PAIRED_CONFLICTS = "conflicts per 1,000 vehicles"
 BESIDE_LANE_CHANGES = "lane changes per vehicle, 0 / 50 / 100% AVs"
 
 
+def counted(result: dict[str, Any], key: str) -> bool:
+    """Whether any run of the results has `key` for all vehicles (the
+    conflicts where counted, the lane changes on two-lane roads)."""
+    return any(
+        m.get("all", {}).get(key) is not None
+        for sim in SIMULATORS
+        for suffix in DRIVERS
+        for m in (result.get(sim + suffix) or {}).values()
+    )
+
+
 def has_conflicts(result: dict[str, Any]) -> bool:
     """Whether any run of the results counted near-conflicts."""
-    return any(
-        m.get("all", {}).get(CONFLICTS) is not None
-        for sim in SIMULATORS
-        for suffix in DRIVERS
-        for m in (result.get(sim + suffix) or {}).values()
-    )
+    return counted(result, CONFLICTS)
 
 
-def has_lane_changes(result: dict[str, Any]) -> bool:
-    """Whether any run of the results counted lane changes (two-lane roads)."""
-    return any(
-        m.get("all", {}).get(LANE_CHANGES) is not None
-        for sim in SIMULATORS
-        for suffix in DRIVERS
-        for m in (result.get(sim + suffix) or {}).values()
-    )
+def at_shares(runs: dict[str, Any], key: str, digits: int) -> str:
+    """``"0 / 5 / 12"``: `key` of all vehicles at `BESIDE_AT`'s shares."""
+    values = [runs.get(label, {}).get("all", {}).get(key) for label in BESIDE_AT]
+    return " / ".join("-" if v is None else f"{v:.{digits}f}" for v in values)
 
 
 def beside_columns(result: dict[str, Any]) -> tuple[str, ...]:
     """`BESIDE_COLUMNS`, and the conflicts' and lane changes' where counted."""
     conflicts = (BESIDE_CONFLICTS,) if has_conflicts(result) else ()
-    lanes = (BESIDE_LANE_CHANGES,) if has_lane_changes(result) else ()
+    lanes = (BESIDE_LANE_CHANGES,) if counted(result, LANE_CHANGES) else ()
     return BESIDE_COLUMNS + conflicts + lanes
 
 
@@ -102,7 +104,7 @@ def by_share(per_label: dict[str, Any]) -> dict[float, Any]:
 
 def beside_rows(result: dict[str, Any]) -> list[list[str]]:
     """Rows of `beside_columns`: per simulator, each driver present."""
-    conflicts, lanes, rows = has_conflicts(result), has_lane_changes(result), []
+    conflicts, lanes, rows = has_conflicts(result), counted(result, LANE_CHANGES), []
     for sim, sim_name in SIMULATORS.items():
         for suffix, driver in DRIVERS.items():
             runs = result.get(sim + suffix)
@@ -119,14 +121,9 @@ def beside_rows(result: dict[str, Any]) -> list[list[str]]:
             hv = runs.get(HV_AT, {}).get("hv", {}).get("mean_crossing_time_s")
             row.append("-" if hv is None else f"{hv:.2f} s")
             if conflicts:
-                counts = [runs.get(label, {}).get("all", {}).get(CONFLICTS)
-                          for label in BESIDE_AT]  # fmt: skip
-                row.append(" / ".join("-" if c is None else f"{c:.0f}" for c in counts))
+                row.append(at_shares(runs, CONFLICTS, 0))
             if lanes:
-                changes = [runs.get(label, {}).get("all", {}).get(LANE_CHANGES)
-                           for label in BESIDE_AT]  # fmt: skip
-                cells = ("-" if c is None else f"{c:.2f}" for c in changes)
-                row.append(" / ".join(cells))
+                row.append(at_shares(runs, LANE_CHANGES, 2))
             rows.append(row)
     return rows
 
