@@ -22,11 +22,14 @@ import jax.numpy as jnp
 from flax import struct
 
 from jaxround.core.dynamics import SpeedPatch
+from jaxround.core.geometry import NetArrays
 from jaxround.core.network import CompiledNetwork
+from jaxround.core.params import CarFollowing
 from jaxround.core.state import EnvState
 from jaxround.envs.lane_view import lane_request
 from jaxround.lanes import ring_changer, ring_rounds, ring_turns
 from jaxround.lanes.best_lanes import LookAheadDriver
+from jaxround.lanes.entry_hold import held_by_approaching, held_by_occupied
 from jaxround.lanes.follow import Driver
 from jaxround.lanes.memory import patch_speed, prepare_step
 from jaxround.lanes.params import LaneChangeParams
@@ -39,6 +42,8 @@ from jaxround.sumo_files.compile import compile_network
 #: SUMO's `MSVehicleControl::getMaxSpeedFactor` with its default vType loaded
 #: (speedFactor normc(1, 0.1, 0.2, 2)): the followers' search distance.
 MAX_SPEED_FACTOR = 2.0
+#: `LaneChanger`'s choices for the hold at entries.
+HOLD_MODES = ("off", "occupied", "approaching")
 
 
 @struct.dataclass
@@ -103,11 +108,25 @@ class LaneChanger:
         net_file: its `.net.xml` (the paths' numbering is `lane_paths`').
         in_rounds: `ring_rounds` instead of the turns one by one; None:
             rounds on an accelerator, turns on a CPU.
+        hold_entries: hold back a change to an entry lane while a foe
+            link's internal lane is occupied (``"occupied"``) or also while
+            a registered foe would be in the way (``"approaching"``), as
+            `jaxround.lanes.entry_hold` reads SUMO 1.28's hold; ``"off"``
+            (the default): never. Neither reading is SUMO's rule: each moves
+            the step away from SUMO somewhere (figures in that module).
     """
 
     def __init__(
-        self, cfg: ScenarioConfig, net_file: str | Path, in_rounds: bool | None = None
+        self,
+        cfg: ScenarioConfig,
+        net_file: str | Path,
+        in_rounds: bool | None = None,
+        hold_entries: str = "off",
     ) -> None:
+        if hold_entries not in HOLD_MODES:
+            raise ValueError(
+                f"hold_entries={hold_entries!r}: expected one of {HOLD_MODES}"
+            )
         tables = changer_tables(cfg, net_file)
         self.paths = tables.paths
         self.arrays = changer_arrays(cfg, tables)
@@ -117,6 +136,7 @@ class LaneChanger:
         if in_rounds is None:
             in_rounds = jax.default_backend() != "cpu"
         self.in_rounds = in_rounds
+        self.hold_entries = hold_entries
 
     def request(
         self, state: EnvState, lane_action: jax.Array, agent: jax.Array
@@ -137,10 +157,14 @@ class LaneChanger:
         return patched
 
     def vehicles(
-        self, state: EnvState, request: jax.Array | None = None
+        self,
+        state: EnvState,
+        request: jax.Array | None = None,
+        hold: jax.Array | None = None,
     ) -> tuple[ring_changer.RingVehicles, Memory]:
         """The changer's view of ``state`` after the move, and the memory
-        reset for the step (``prepareStep``; an empty slot's cleared)."""
+        reset for the step (``prepareStep``; an empty slot's cleared);
+        ``hold`` (M, 2) as `RingVehicles.entry_hold`."""
         active = state.active
         memory = jax.tree.map(
             lambda x, z: jnp.where(active.reshape(-1, *([1] * (x.ndim - 1))), x, z),
@@ -152,19 +176,42 @@ class LaneChanger:
         veh = ring_changer.RingVehicles(
             path=state.route, pos=state.pos, speed=state.speed, accel=state.accel,
             active=active, driver=driver, speed_factor=state.speed_factor,
-            lane_request=request,
+            lane_request=request, entry_hold=hold,
         )  # fmt: skip
         return veh, memory
 
+    def holds(self, state: EnvState, net: NetArrays, car: CarFollowing) -> jax.Array:
+        """bool (M, 2): where a change right / left would be held back at the
+        target lane's entry (`jaxround.lanes.entry_hold`), from ``state``
+        after the move."""
+        held = held_by_occupied(
+            net, self.arrays, state.route, state.pos, car.length, state.active
+        )
+        if self.hold_entries == "approaching":
+            t = state.step.astype(jnp.float32) * self.dt
+            held = held | held_by_approaching(
+                net, self.arrays, car, state.route, state.pos, state.speed,
+                state.speed_factor, state.active, state.registrations, t, self.dt,
+            )  # fmt: skip
+        return held
+
     def __call__(
-        self, state: EnvState, lc: LaneChangeParams, request: jax.Array | None = None
+        self,
+        state: EnvState,
+        lc: LaneChangeParams,
+        request: jax.Array | None = None,
+        net: NetArrays | None = None,
+        car: CarFollowing | None = None,
     ) -> tuple[EnvState, jax.Array]:
         """Change lanes after the move (arrivals gone, insertions not yet).
 
         Args:
-            state: after the move; ``state.lanes`` a `LaneState`.
+            state: after the move; ``state.lanes`` a `LaneState`,
+                ``state.registrations`` the step's.
             lc: the lane-change parameters (scalars or (M,)).
             request: int (M,) a lane index TraCI asks for (-1: none), or None.
+            net, car: the step's network and each vehicle's car-following
+                numbers, for the hold at entries (None: no hold).
 
         Returns:
             (state, direction): the state on its new paths, and int (M,)
@@ -172,7 +219,10 @@ class LaneChanger:
         """
         lanes: LaneState = state.lanes
         active = state.active
-        veh, memory = self.vehicles(state, request)
+        hold = None
+        if self.hold_entries != "off" and net is not None and car is not None:
+            hold = self.holds(state, net, car)
+        veh, memory = self.vehicles(state, request, hold)
         if self.in_rounds:
             result, memory, _ = ring_rounds.change_lanes(
                 self.arrays, veh, memory, lc, self.dt

@@ -335,7 +335,7 @@ class RoundaboutEnv:
         # 3. lane changes (two-lane roads), insertions, the queues of the new time
         if self.lane_changer is not None:
             with jax.named_scope("lane_changes"):
-                state, _ = self.lane_changer(state, lc, request)
+                state, _ = self.lane_changer(state, lc, request, net, pv)
         with jax.named_scope("insertion"):
             state = self._insert(state, p, t + self.dt)
         with jax.named_scope("queues"):

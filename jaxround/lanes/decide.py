@@ -48,8 +48,9 @@ class Turn(NamedTuple):
 class Side(NamedTuple):
     """What the candidate sees on one side: may it look there at all (the
     lane exists and changing to it is allowed), the target lane's leader
-    and follower with their slots, the target lane's LaneQ and the roundabout
-    bonus of that look (m)."""
+    and follower with their slots, the target lane's LaneQ, the roundabout
+    bonus of that look (m), and whether a foe at the target lane's entry
+    link holds a change there back (`jaxround.lanes.entry_hold`)."""
 
     may: jax.Array
     ego: Ego
@@ -59,6 +60,7 @@ class Side(NamedTuple):
     follow: Neighbour
     follow_slot: jax.Array
     bonus: jax.Array | float
+    held: jax.Array | bool = False
 
 
 class Told(NamedTuple):
@@ -146,9 +148,13 @@ def turn_of(
         sgp = wish.speed_gain_probability
         krp = wish.keep_right_probability
         look = wish.look_ahead_speed
-        # `checkChange`: the request once more, on the state with the blocked bits
+        # `checkChange`: a wanted change nothing blocked may still be held
+        # back at the target lane's entry (`unsafeLinkAhead`); then the
+        # request once more, on the state with the blocked bits
+        wanted = (blocked == 0) & ((wish.state & lca.WANTS_LANECHANGE) != 0)
+        held = jnp.where(wanted & side.held, lca.HELD, 0)
         states[direction] = jnp.where(
-            side.may, traci.influence(wish.state | blocked, request), 0
+            side.may, traci.influence(wish.state | blocked | held, request), 0
         )
         for advice in wish.own_advices:
             advices = push_advice(advices, advice)

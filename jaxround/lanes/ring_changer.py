@@ -26,9 +26,10 @@ find it (SUMO's source as read in docs/lc2013-map.md section 2):
   the lanes' braking distance), the one whose secure gap is most
   violated, a vehicle coming over a minor link with its gap floored at 0.
 
-Not here: link leaders (vehicles on a crossing or merging junction lane),
-`getCriticalLeader`, `unsafeLinkAhead`, partial vehicles on the follower
-side, stops.
+`unsafeLinkAhead` is `jaxround.lanes.entry_hold`'s, given as
+`RingVehicles.entry_hold`. Not here: link leaders (vehicles on a crossing
+or merging junction lane), `getCriticalLeader`, partial vehicles on the
+follower side, stops.
 
 Shapes: M vehicle slots, L lanes, P paths, K path positions, Z lanes of an
 edge, C, U as in `jaxround.lanes.ring_tables`.
@@ -61,6 +62,9 @@ class RingVehicles(NamedTuple):
         active: bool; driver: `Driver` of (M,) arrays; speed_factor.
         lane_request: int lane index a TraCI request asks for this step
             (`jaxround.lanes.traci`, lasting the step; -1 or None: none).
+        entry_hold: bool (M, 2) a change right / left would be held back at
+            the target lane's entry link (`jaxround.lanes.entry_hold`; None:
+            never).
     """
 
     path: jax.Array
@@ -71,6 +75,7 @@ class RingVehicles(NamedTuple):
     driver: Driver
     speed_factor: jax.Array
     lane_request: jax.Array | None = None
+    entry_hold: jax.Array | None = None
 
 
 class Sight(NamedTuple):
@@ -261,6 +266,7 @@ def turn(ctx: Context, i: jax.Array, view: View, memory: Memory) -> Outcome:
             ego=ego_view(tz), neigh=laneq(net.lane_index[tz]),
             lead=neighbour(*lead), lead_slot=lead[0],
             follow=neighbour(*back), follow_slot=back[0], bonus=bonus,
+            held=False if veh.entry_hold is None else veh.entry_hold[i, side],
         ))  # fmt: skip
         targets.append(tz)
         paths.append(q)
