@@ -31,6 +31,14 @@ def test_search_writes_its_results_and_refuses_to_overwrite(tmp_path, capsys) ->
     # a tiny search may end worse than the vType; then it says so
     worse = result["constant_vs_vtype"]["rel_diff"] > 0
     assert ("the vType is the stronger baseline" in printed.err) == worse
+    # and when the constant breaks the conflict limit on the evaluation seeds
+    over = (
+        result["eval"]["constant"]["conflicts_per_1000"]
+        > result["conflict_limit_per_1000"]
+    )
+    assert ("above the limit" in printed.err) == over
+    # a search at 50% AVs names the built-in file it would make
+    assert "_p50.json and pass --best-constant " in printed.out
     # the best constant as the main job reads it, with the command that found it
     best = load_best_constant(out / "best_constant.json")
     assert best.setting == result["best_constant"] and best.front["points"]

@@ -42,6 +42,18 @@ def test_milan_files_are_what_their_search_wrote(
     assert saved["setting"]["tau"] >= load_config("milan").safety.min_av_tau_s
 
 
+def test_the_two_lane_file_at_50_percent_is_what_its_search_wrote() -> None:
+    # docs/results/two_lane_search_p50.json is the search's result
+    result = json.loads((ROOT / "docs/results/two_lane_search_p50.json").read_text())
+    saved = json.loads(builtin_path("two_lane_p50").read_text())
+    assert best_constant_file(result, saved["command"]) == saved
+    assert saved["found"]["penetration"] == 0.5
+    assert saved["command"].startswith(
+        "jaxround search --out DIR --config two_lane --penetration 50 "
+    )
+    assert load_best_constant("two_lane_p50").setting == result["best_constant"]
+
+
 def test_the_command_spells_out_every_option() -> None:
     args = argparse.Namespace(
         config=None, penetration=0.5, window_s=1800.0, demand_scale=1.5,

@@ -141,9 +141,18 @@ def cmd_search(args: argparse.Namespace) -> None:
         )
     print(
         f"wrote {out / 'search.json'}, {out / 'search.png'} and "
-        f"{out / 'best_constant.json'} (copy it to configs/best_constant/"
-        f"{result['scenario']}.json for the main job)"
+        f"{out / 'best_constant.json'} ({where_to_copy(result)})"
     )
+    limit = result.get("conflict_limit_per_1000")
+    found = result["eval"]["constant"]["conflicts_per_1000"]
+    if limit is not None and found > limit:
+        print(
+            f"warning: on the evaluation seeds the best constant has {found:.1f} "
+            f"near-conflicts per 1,000 vehicles, above the limit of {limit:.1f} "
+            "it was held to on the search seeds (more --search-seeds or a longer "
+            "--window-s make the limit hold more widely)",
+            file=sys.stderr,
+        )
     worse = result["constant_vs_vtype"]["rel_diff"]
     if worse > 0:  # a baseline weaker than doing nothing flatters a policy
         print(
@@ -153,6 +162,18 @@ def cmd_search(args: argparse.Namespace) -> None:
             "before using best_constant.json as a baseline",
             file=sys.stderr,
         )
+
+
+def where_to_copy(result: dict) -> str:
+    """Where a search's best_constant.json goes to be a built-in baseline:
+    the scenario's name at 100% AVs, with the penetration otherwise."""
+    name, percent = result["scenario"], round(100 * result["penetration"])
+    if percent == 100:
+        return f"copy it to configs/best_constant/{name}.json for the main job"
+    return (
+        f"copy it to configs/best_constant/{name}_p{percent}.json and pass "
+        f"--best-constant {name}_p{percent}"
+    )
 
 
 def conflict_limit(text: str) -> str | float | None:
