@@ -119,7 +119,8 @@ class Context(NamedTuple):
     the move (`RingVehicles`), the parameters, and where the vehicles stand
     before any change ((M,) each: path position ``k``, ``lane``, ``on_lane``
     position (m), ``brutto`` length + minGap (m); (M, L) ``v_max_on``
-    `getVehicleMaxSpeed` on every lane), and ``order`` (M,) their turns."""
+    `getVehicleMaxSpeed` on every lane), ``order`` (M,) their turns, and
+    ``decides`` bool (M,) the vehicle is on an edge with a changer."""
 
     net: RingArrays
     veh: RingVehicles
@@ -131,6 +132,7 @@ class Context(NamedTuple):
     brutto: jax.Array
     v_max_on: jax.Array
     order: jax.Array
+    decides: jax.Array
 
 
 class View(NamedTuple):
@@ -177,16 +179,19 @@ def context(
     net: RingArrays, veh: RingVehicles, lc: LaneChangeParams, dt: float
 ) -> Context:
     """The step's `Context`; the turns go edge by edge in lane-table order,
-    front to back within an edge, ties to the right lane."""
+    front to back within an edge, ties to the right lane; the vehicles on
+    an edge without a changer come after them (their turns change nothing:
+    SUMO has no changer there), empty slots last."""
     k, lane, on_lane = locate(net, veh.path, veh.pos)
+    decides = veh.active & (net.change_path[veh.path, k] >= 0).any(axis=-1)
     order = jnp.lexsort((net.lane_index[lane], -on_lane, net.lane_order[lane],
-                         ~veh.active))  # fmt: skip
+                         ~decides, ~veh.active))  # fmt: skip
     v_max_on = jnp.minimum(
         veh.driver.max_speed[:, None],
         net.lane_speed[None, :] * veh.speed_factor[:, None],
     )
     brutto = veh.driver.length + veh.driver.min_gap
-    return Context(net, veh, lc, dt, k, lane, on_lane, brutto, v_max_on, order)
+    return Context(net, veh, lc, dt, k, lane, on_lane, brutto, v_max_on, order, decides)
 
 
 def turn(ctx: Context, i: jax.Array, view: View, memory: Memory) -> Outcome:
@@ -296,7 +301,7 @@ def turn(ctx: Context, i: jax.Array, view: View, memory: Memory) -> Outcome:
     kept = jax.tree.map(lambda new, old: jnp.where(active_i, new, old), kept, as_was)
     # no changer on its edge (one lane, or changing not allowed): SUMO
     # registers it unchanged without asking the model
-    decides = active_i & (net.change_path[p, k] >= 0).any()
+    decides = ctx.decides[i]
     direction = jnp.where(decides, decision.direction, 0)
     right, left = direction < 0, direction > 0
     return Outcome(

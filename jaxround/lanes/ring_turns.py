@@ -2,10 +2,11 @@
 
 `MSLaneChanger` gives the vehicles their turns one after another, each
 seeing what the turns before it left (`jaxround.lanes.ring_changer`: the
-order, one turn). Forward, `change_lanes` takes the vehicles' turns only:
-a `lax.while_loop` over them, so that a step costs what its vehicles need,
-not what its slots hold (they come first in the order, and an empty slot's
-turn would change nothing: `ring_changer.turn`).
+order, one turn). Forward, `change_lanes` takes only the turns of the
+vehicles on edges with a changer: a `lax.while_loop` over them, so that a
+step costs what those vehicles need, not what its slots hold (they come
+first in the order, and the turn of an empty slot or of a vehicle on an
+edge without a changer would change nothing: `ring_changer.turn`).
 
 Reverse mode cannot differentiate a `while_loop`, so the gradient is the
 one of the same turns taken by a `lax.scan` over every slot
@@ -92,15 +93,16 @@ def turns_of_vehicles(
     lc: LaneChangeParams,
     dt: float,
 ) -> tuple[RingChanges, Memory]:
-    """The vehicles' turns, a `while_loop` over them; an empty slot's
-    outcome is "no change" (as its turn would give)."""
+    """The turns of the vehicles on edges with a changer, a `while_loop` over
+    them; every other slot's outcome is "no change" (as its turn would
+    give)."""
     ctx = context(net, veh, lc, dt)
     m = veh.pos.shape[0]
     init = first_carry(ctx, memory)
     shapes = jax.eval_shape(lambda: for_changes(take(ctx, init, ctx.order[0])[1]))
     outcome = jax.tree.map(lambda x: jnp.zeros((m, *x.shape), x.dtype), shapes)
     outcome = outcome._replace(to_lane=ctx.lane, to_path=veh.path)
-    n_turns = jnp.sum(veh.active)
+    n_turns = jnp.sum(ctx.decides)
 
     def more(loop: tuple[jax.Array, Carry, Outcome]) -> jax.Array:
         return loop[0] < n_turns
