@@ -38,7 +38,12 @@ from jaxround.analysis.metrics import (
 from jaxround.core.capacity import road_capacity
 from jaxround.core.state import EnvState
 from jaxround.envs.constant_setting import constant_setting_runs
-from jaxround.envs.rollout import NO_COMMAND, Policy, run_until_left, vehicle_records
+from jaxround.envs.rollout import (
+    NO_COMMAND,
+    Policy,
+    runs_until_left,
+    vehicle_records,
+)
 from jaxround.envs.roundabout import RoundaboutEnv, make
 from jaxround.envs.slots import redo_on_overflow
 from jaxround.scenario.best_constant import BestConstant
@@ -109,11 +114,13 @@ def run_drivers(
     max_vehicles: int | str | None = None,
     drain_s: float = DRAIN_S,
     constant: BestConstant | None = None,
+    progress: bool = False,
 ) -> DriverRuns:
     """The policy and the uncontrolled baseline on every schedule in one
     batch, and the constant setting (driver "best_constant") on the same
     schedules in another (`jaxround.envs.constant_setting`) when given.
-    Arguments as `evaluate_policy`'s."""
+    Arguments as `evaluate_policy`'s; ``progress``: progress bars in
+    simulated time on stderr."""
     arrays, layout = load_policy(policy_path)
     check_scenario(layout, cfg)
     cfg = with_observer(cfg, layout.observer, layout.action)
@@ -145,11 +152,12 @@ def run_drivers(
             *[env.schedule_from_numpy(numpy_schedules[(p, s)]) for _, p, s in runs],
         )
 
-        def one(schedule: Any, key: jax.Array, flag: jax.Array) -> EnvState:
-            policy = switched_policy(weights, layout, flag)
-            return run_until_left(env, params, schedule, key, policy)
-
-        return env, jax.jit(jax.vmap(one))(batch, keys, use_policy)
+        return env, runs_until_left(
+            env, params, batch, keys,
+            lambda flag: switched_policy(weights, layout, flag),
+            jnp.asarray(use_policy),
+            desc=f"JAX, {len(runs)} runs side by side" if progress else None,
+        )  # fmt: skip
 
     (env, states), tried = redo_on_overflow(
         run_with, lambda run: int(np.sum(run[1].stats.overflow)),
@@ -161,7 +169,7 @@ def run_drivers(
         jobs = [("best_constant", p, s) for p in penetrations for s in seeds]
         env_c, states_c, _ = constant_setting_runs(
             cfg, constant, [numpy_schedules[(p, s)] for _, p, s in jobs],
-            max_vehicles=env.max_vehicles, cap_s=cap_s,
+            max_vehicles=env.max_vehicles, cap_s=cap_s, progress=progress,
         )  # fmt: skip
         batches.append((env_c, states_c, jobs))
     records: dict[str, dict[float, list[Any]]] = {}
@@ -262,6 +270,7 @@ def evaluate_policy(
     drain_s: float = DRAIN_S,
     score_scale: str = "sweep",
     constant: BestConstant | None = None,
+    progress: bool = False,
 ) -> dict[str, Any]:
     """Run the policy and the uncontrolled baseline on every schedule.
 
@@ -286,6 +295,7 @@ def evaluate_policy(
         constant: a constant AV setting run on the same schedules as a third
             driver, "best_constant" (the means then over the vehicles
             arrived in all three).
+        progress: progress bars in simulated time on stderr.
 
     Returns:
         ``{"scenario", "seeds", "policy": path, "layout": {...},
@@ -307,8 +317,9 @@ def evaluate_policy(
     if score_scale not in SCORE_SCALES:
         raise ValueError(f"score_scale {score_scale!r}, expected one of {SCORE_SCALES}")
     runs = run_drivers(
-        policy_path, cfg, penetrations, seeds, max_vehicles, drain_s, constant
-    )
+        policy_path, cfg, penetrations, seeds, max_vehicles, drain_s, constant,
+        progress,
+    )  # fmt: skip
     result = summarise_drivers(runs, score_scale)
     if keep_records:
         result["records"] = runs.records

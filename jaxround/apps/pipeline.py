@@ -87,8 +87,9 @@ def evaluate_everywhere(
     others = "uncontrolled AVs" + (", best constant" if constant else "")
     say(f"{step}JAX: policy, {others}, {n}")
     jax_runs = run_drivers(
-        policy, cfg, penetrations, seeds, drain_s=drain_s, constant=constant
-    )
+        policy, cfg, penetrations, seeds, drain_s=drain_s, constant=constant,
+        progress=progress,
+    )  # fmt: skip
     say(f"{step}SUMO: the policy through libsumo, then {others}, {n}")
     runs = {
         "policy": sumo_runs(cfg, penetrations, seeds, workers, progress, factory,

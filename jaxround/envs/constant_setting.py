@@ -23,7 +23,7 @@ from jaxround.core.capacity import road_capacity
 from jaxround.core.params import EnvParams
 from jaxround.core.state import EnvState
 from jaxround.envs.observe import rich_observation
-from jaxround.envs.rollout import Policy, run_until_left, uncontrolled_policy
+from jaxround.envs.rollout import Policy, runs_until_left, uncontrolled_policy
 from jaxround.envs.roundabout import RoundaboutEnv, make
 from jaxround.envs.scripted import controller_from_spec
 from jaxround.envs.slots import redo_on_overflow
@@ -68,8 +68,10 @@ def constant_setting_runs(
     *,
     max_vehicles: int,
     cap_s: float,
+    progress: bool = False,
 ) -> tuple[RoundaboutEnv, EnvState, list[int]]:
-    """Every schedule with the AVs on the constant setting, in one jitted batch.
+    """Every schedule with the AVs on the constant setting, in one batch
+    (`jaxround.envs.rollout.runs_until_left`).
 
     Args:
         cfg: the scenario (its AV vType is replaced by the constant's).
@@ -77,6 +79,7 @@ def constant_setting_runs(
         schedules: B numpy schedules (`jaxround.scenario.schedule`).
         max_vehicles: slots M to start from (redone with more on overflow).
         cap_s: simulated seconds a run may go on.
+        progress: a progress bar in simulated time on stderr.
 
     Returns:
         (the environment of the reported runs, their final states batched
@@ -90,11 +93,12 @@ def constant_setting_runs(
             lambda *xs: np.stack(xs), *[env.schedule_from_numpy(s) for s in schedules]
         )
         policy = constant_policy(env, params, constant)
-
-        def one(schedule: Schedule) -> EnvState:
-            return run_until_left(env, params, schedule, jax.random.PRNGKey(0), policy)
-
-        return env, jax.jit(jax.vmap(one))(batch)
+        keys = jnp.tile(jax.random.PRNGKey(0), (len(schedules), 1))
+        return env, runs_until_left(
+            env, params, batch, keys, lambda flag: policy,
+            jnp.zeros(len(schedules), bool),
+            desc=f"JAX, best constant, {len(schedules)} runs" if progress else None,
+        )  # fmt: skip
 
     env, _ = make(cfg, max_vehicles=max_vehicles, episode_s=cap_s)
     (env, states), tried = redo_on_overflow(

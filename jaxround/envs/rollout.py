@@ -1,4 +1,6 @@
-"""Whole episodes by `lax.scan`, and their per-vehicle records for the metrics."""
+"""Whole episodes by `lax.scan` or until every vehicle has left (one run, or
+a batch in chunks with a progress bar), and their per-vehicle records for
+the metrics."""
 
 from __future__ import annotations
 
@@ -7,6 +9,7 @@ from collections.abc import Callable
 import jax
 import jax.numpy as jnp
 import numpy as np
+from tqdm import tqdm
 
 from jaxround.core.params import EnvParams
 from jaxround.core.state import EnvState, Schedule
@@ -98,6 +101,71 @@ def run_until_left(
 
     _, state, _ = jax.lax.while_loop(running, body, (obs, state, key))
     return state
+
+
+def runs_until_left(
+    env: RoundaboutEnv,
+    params: EnvParams,
+    schedules: Schedule,
+    keys: jax.Array,
+    policy_of: Callable[[jax.Array], Policy],
+    flags: jax.Array,
+    desc: str | None = None,
+    chunk_s: float = 120.0,
+) -> EnvState:
+    """`run_until_left` for B runs side by side, in jitted chunks of
+    ``chunk_s`` simulated seconds, with a progress bar in simulated time.
+
+    The same runs as ``jax.vmap(run_until_left)``: one `while_loop` cut
+    into several with the same body, the same trips and every integer of
+    the state to the bit, its float sums to rounding (XLA compiles the
+    chunks apart; `tests/unit/test_rollout.py`).
+
+    Args:
+        schedules: B schedules, batched; keys: (B, 2) their keys.
+        policy_of: the policy of a run from its flag; flags: (B,) one each.
+        desc: the progress bar's label (None: no bar).
+
+    Returns:
+        the final states, batched over B.
+    """
+    max_steps = env.episode_steps
+
+    def start(schedule: Schedule, key: jax.Array) -> tuple:
+        obs, state = env.reset_to_schedule(schedule, params)
+        return obs, state, key
+
+    def advance(carry: tuple, flag: jax.Array, until: jax.Array) -> tuple:
+        policy = policy_of(flag)
+
+        def running(carry: tuple) -> jax.Array:
+            _, state, _ = carry
+            left = jnp.all(~jnp.isnan(state.arrival_s))
+            return (state.step < until) & ~left
+
+        def body(carry: tuple) -> tuple:
+            obs, state, key = carry
+            key, k_act, k_env = jax.random.split(key, 3)
+            action = policy(obs, state, k_act)
+            obs, state, _, _, _ = env.step_env(k_env, state, action, params)
+            return obs, state, key
+
+        return jax.lax.while_loop(running, body, carry)
+
+    carry = jax.jit(jax.vmap(start))(schedules, keys)
+    step = jax.jit(jax.vmap(advance, in_axes=(0, 0, None)))
+    chunk = max(1, int(round(chunk_s / env.dt)))
+    total_s = max_steps * env.dt
+    with tqdm(total=round(total_s), unit="s", desc=desc, disable=desc is None,
+              leave=False) as bar:  # fmt: skip
+        until = 0
+        while until < max_steps:
+            until = min(until + chunk, max_steps)
+            carry = step(carry, flags, jnp.int32(until))
+            bar.update(round(until * env.dt) - bar.n)
+            if bool(jnp.all(~jnp.isnan(carry[1].arrival_s))):
+                break
+    return carry[1]
 
 
 def make_episode_runner(

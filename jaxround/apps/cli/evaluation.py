@@ -86,6 +86,7 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
         summary = evaluate_policy(
             args.policy, cfg, args.penetrations, seeds, max_vehicles=args.max_vehicles,
             drain_s=args.drain_s, score_scale=args.score_scale, constant=constant,
+            progress=not args.json,
         )  # fmt: skip
     except ValueError as err:
         raise UsageError(f"--policy {args.policy}: {err}") from None
