@@ -97,6 +97,7 @@ SLOW_FILES = (
     "tests/unit/test_setting_search.py",  # 46
     "tests/unit/test_ppo.py",  # 60
     "tests/unit/test_ring_turns.py",  # 58: 4 min of two lanes, 200 changer steps
+    "tests/unit/test_entry_hold.py",  # 20: 200 s of two lanes, the changer each step
     "tests/unit/test_demand_gradient.py",  # 40
     "tests/e2e/test_apg.py",  # 40
     "tests/e2e/test_two_lane_agents.py",  # 150: training, evaluations, a search
