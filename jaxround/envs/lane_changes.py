@@ -183,7 +183,9 @@ class LaneChanger:
     def holds(self, state: EnvState, net: NetArrays, car: CarFollowing) -> jax.Array:
         """bool (M, 2): where a change right / left would be held back at the
         target lane's entry (`jaxround.lanes.entry_hold`), from ``state``
-        after the move."""
+        after the move: the occupied foe lanes, and the registered foes too
+        under ``hold_entries="approaching"`` (whatever the mode, the step
+        uses this only when the mode is not ``"off"``)."""
         held = held_by_occupied(
             net, self.arrays, state.route, state.pos, car.length, state.active
         )
