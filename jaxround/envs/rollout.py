@@ -86,11 +86,23 @@ def run_until_left(
     policy = uncontrolled_policy(env) if policy is None else policy
     max_steps = env.episode_steps if max_steps is None else max_steps
     obs, state = env.reset_to_schedule(schedule, params)
+    return _advance(env, params, policy, (obs, state, key), max_steps)[1]
+
+
+def _advance(
+    env: RoundaboutEnv,
+    params: EnvParams,
+    policy: Policy,
+    carry: tuple[jax.Array, EnvState, jax.Array],
+    until: jax.Array | int,
+) -> tuple[jax.Array, EnvState, jax.Array]:
+    """Step ``carry`` = (obs, state, key) until every scheduled vehicle has
+    left or ``state.step`` reaches ``until`` (a `lax.while_loop`)."""
 
     def running(carry: tuple) -> jax.Array:
         _, state, _ = carry
         left = jnp.all(~jnp.isnan(state.arrival_s))
-        return (state.step < max_steps) & ~left
+        return (state.step < until) & ~left
 
     def body(carry: tuple) -> tuple:
         obs, state, key = carry
@@ -99,8 +111,7 @@ def run_until_left(
         obs, state, _, _, _ = env.step_env(k_env, state, action, params)
         return obs, state, key
 
-    _, state, _ = jax.lax.while_loop(running, body, (obs, state, key))
-    return state
+    return jax.lax.while_loop(running, body, carry)
 
 
 def runs_until_left(
@@ -136,21 +147,7 @@ def runs_until_left(
         return obs, state, key
 
     def advance(carry: tuple, flag: jax.Array, until: jax.Array) -> tuple:
-        policy = policy_of(flag)
-
-        def running(carry: tuple) -> jax.Array:
-            _, state, _ = carry
-            left = jnp.all(~jnp.isnan(state.arrival_s))
-            return (state.step < until) & ~left
-
-        def body(carry: tuple) -> tuple:
-            obs, state, key = carry
-            key, k_act, k_env = jax.random.split(key, 3)
-            action = policy(obs, state, k_act)
-            obs, state, _, _, _ = env.step_env(k_env, state, action, params)
-            return obs, state, key
-
-        return jax.lax.while_loop(running, body, carry)
+        return _advance(env, params, policy_of(flag), carry, until)
 
     carry = jax.jit(jax.vmap(start))(schedules, keys)
     step = jax.jit(jax.vmap(advance, in_axes=(0, 0, None)))
