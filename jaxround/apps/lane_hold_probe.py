@@ -27,22 +27,13 @@ from jaxround.lanes import actions as lca
 from jaxround.scenario.config import ScenarioConfig, load_config
 from jaxround.scenario.schedule import make_schedule
 
-#: Every bit of SUMO's LCA_BLOCKED (LCA_INSUFFICIENT_SPEED is 1 << 28).
-ALL_BLOCKED = (
-    lca.BLOCKED_BY_LEFT_LEADER
-    | lca.BLOCKED_BY_LEFT_FOLLOWER
-    | lca.BLOCKED_BY_RIGHT_LEADER
-    | lca.BLOCKED_BY_RIGHT_FOLLOWER
-    | lca.INSUFFICIENT_SPACE
-    | (1 << 28)
-)
-
 
 @dataclass(frozen=True)
 class Held:
     """A vehicle-step where the model wants the left lane, unblocked, and
-    the changer blocks it: step index (the state is after step ``step``),
-    vehicle, lane, distance to the lane's end (m) and speed (m/s)."""
+    the changer blocks it: the step's 0-based index (the state read after
+    ``step + 1`` steps), vehicle, lane, distance to the lane's end (m) and
+    speed (m/s)."""
 
     step: int
     vehicle: str
@@ -52,12 +43,13 @@ class Held:
 
 
 def is_held(states: tuple[int, int]) -> bool:
-    """Model wants left and is not blocked; the final state has LCA_BLOCKED."""
+    """Model wants left and is not blocked; the final state has every bit of
+    SUMO's LCA_BLOCKED (`jaxround.lanes.actions.HELD`)."""
     model, final = states
     return (
         bool(model & lca.LEFT)
-        and not model & ALL_BLOCKED
-        and (final & ALL_BLOCKED) == ALL_BLOCKED
+        and not model & lca.HELD
+        and (final & lca.HELD) == lca.HELD
     )
 
 
