@@ -53,6 +53,7 @@ from jaxround.core.geometry import NetArrays
 from jaxround.core.junction import entry_approach, entry_blocked
 from jaxround.core.params import CarFollowing
 from jaxround.core.state import Registrations
+from jaxround.lanes.ring_changer import locate
 from jaxround.lanes.ring_neighbours import RingArrays
 
 #: `MSLink::myLookaheadTime`: the time gap of `blockedByFoe` without an ego (s).
@@ -79,8 +80,7 @@ def targets(
     """The lane path a change right / left would take, int (M, 2) (-1: no
     change there or the vehicle is past its yield line), and the entry each
     leads to, int (M, 2)."""
-    starts = arrays.path_lane_start[route]
-    k = jnp.clip(jnp.sum(starts <= pos[:, None], axis=1) - 1, 0, starts.shape[1] - 1)
+    k, _, _ = locate(arrays, route, pos)
     before_line = active & (net.yield_offset[route] - pos > 0)
     path = jnp.where(before_line[:, None], arrays.change_path[route, k], -1)
     return path, net.route_origin[jnp.maximum(path, 0)]
