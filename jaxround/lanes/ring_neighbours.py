@@ -40,7 +40,9 @@ BONUS_PER_JUNCTION_M = 7.5
 
 
 class RingArrays(NamedTuple):
-    """`RingLanes` as device arrays (see there; nan offsets stay nan)."""
+    """`RingLanes` as device arrays (see there; nan offsets stay nan), the
+    upstream lanes as (L, L) tables: a vehicle's lookups read one entry per
+    other vehicle instead of matching each against U upstream lanes."""
 
     lane_length: jax.Array
     lane_speed: jax.Array
@@ -48,7 +50,6 @@ class RingArrays(NamedTuple):
     lane_index: jax.Array
     lane_side: jax.Array  # (L, 2) right and left neighbour
     lane_order: jax.Array  # (L,) scan order of each lane's edge
-    lane_brake_dist: jax.Array  # (L,) `MSLane::getMaximumBrakeDist`
     path_lanes: jax.Array
     path_lane_start: jax.Array  # +inf padded
     lane_offset: jax.Array
@@ -65,9 +66,10 @@ class RingArrays(NamedTuple):
     bonus_inner: jax.Array
     bonus_outer_here: jax.Array
     bonus_inner_here: jax.Array
-    upstream_lane: jax.Array
-    upstream_dist: jax.Array
-    upstream_minor: jax.Array
+    upstream_m: jax.Array  # (L, L) [x, y]: y's start to x's start, inf: not upstream
+    upstream_minor: jax.Array  # (L, L) [x, y]: a minor link between y and x
+    follower_search: jax.Array  # (L,) the largest `MSLane::getMaximumBrakeDist`
+    # of a lane and its upstream lanes
 
     @classmethod
     def from_tables(
@@ -81,6 +83,17 @@ class RingArrays(NamedTuple):
         edge_rank = {e: r for r, e in enumerate(dict.fromkeys(edge_of))}
         brake = (tables.lane_speed * max_speed_factor) ** 2 * 0.5 / min_decel
         start = np.where(np.isnan(paths.path_lane_start), np.inf, paths.path_lane_start)
+        brake_f = np.asarray(jnp.asarray(brake, f))
+        n_lanes = len(paths.lane_ids)
+        upstream_m = np.full((n_lanes, n_lanes), np.inf, brake_f.dtype)
+        upstream_minor = np.zeros((n_lanes, n_lanes), bool)
+        search = brake_f.copy()
+        for x, ups in enumerate(tables.upstream_lane):
+            for u, y in enumerate(ups):
+                if y >= 0:
+                    upstream_m[x, y] = tables.upstream_dist[x, u]
+                    upstream_minor[x, y] = tables.upstream_minor[x, u]
+                    search[x] = max(search[x], brake_f[y])
         return cls(
             lane_length=jnp.asarray(paths.lane_length, f),
             lane_speed=jnp.asarray(tables.lane_speed, f),
@@ -88,7 +101,6 @@ class RingArrays(NamedTuple):
             lane_index=jnp.asarray(paths.lane_index),
             lane_side=jnp.asarray(np.stack([paths.lane_right, paths.lane_left], 1)),
             lane_order=jnp.asarray([edge_rank[e] for e in edge_of]),
-            lane_brake_dist=jnp.asarray(brake, f),
             path_lanes=jnp.asarray(paths.path_lanes),
             path_lane_start=jnp.asarray(start, f),
             lane_offset=jnp.asarray(paths.lane_offset, f),
@@ -105,9 +117,9 @@ class RingArrays(NamedTuple):
             bonus_inner=jnp.asarray(tables.bonus_inner),
             bonus_outer_here=jnp.asarray(tables.bonus_outer_here),
             bonus_inner_here=jnp.asarray(tables.bonus_inner_here),
-            upstream_lane=jnp.asarray(tables.upstream_lane),
-            upstream_dist=jnp.asarray(tables.upstream_dist, f),
-            upstream_minor=jnp.asarray(tables.upstream_minor),
+            upstream_m=jnp.asarray(upstream_m, f),
+            upstream_minor=jnp.asarray(upstream_minor),
+            follower_search=jnp.asarray(search, f),
         )
 
 
@@ -152,8 +164,7 @@ def leader_on(
     same = scene.others & (lane == target) & ahead_on_lane
     # partly on the target: the front on a lane the target leads to (on
     # this path or not: MSLane's partial occupators), the back on the target
-    upstream = net.upstream_lane[lane] == target  # (M, U)
-    to_start = jnp.min(jnp.where(upstream, net.upstream_dist[lane], jnp.inf), axis=1)
+    to_start = net.upstream_m[lane, target]  # (M,) inf: target not upstream
     back_on_target = to_start + on_lane - driver.length  # along the target lane
     partly = (
         scene.others & (lane != target) & jnp.isfinite(to_start)
@@ -188,18 +199,14 @@ def follower_on(
     back_i = on_lane[i] - driver.length[i]
     same = scene.others & ~scene.done & (lane == target) & (on_lane <= on_lane[i])
     d_same = jnp.where(same, back_i - on_lane - driver.min_gap, jnp.inf)
-    ups = net.upstream_lane[target]  # (U,)
-    up_dist = net.upstream_dist[target]
-    up_brake = jnp.where(ups >= 0, net.lane_brake_dist[jnp.maximum(ups, 0)], 0.0)
-    search = jnp.maximum(net.lane_brake_dist[target], jnp.max(up_brake)) - back_i
-    # (M, U): vehicle j on upstream lane u, within the search
-    on_up = (lane[:, None] == ups[None, :]) & (ups[None, :] >= 0)
-    reached = up_dist - net.lane_length[jnp.maximum(ups, 0)] < search
-    agap = up_dist[None, :] - on_lane[:, None] + back_i - driver.min_gap[:, None]
-    minor = net.upstream_minor[target][None, :]
-    agap = jnp.where(minor, jnp.maximum(agap, 0.0), agap)
-    ok = on_up & reached[None, :] & scene.others[:, None]
-    agap_j = jnp.min(jnp.where(ok, agap, jnp.inf), axis=1)  # (M,)
+    search = net.follower_search[target] - back_i
+    # vehicle j on a lane upstream of the target, within the search
+    up_dist = net.upstream_m[target, lane]  # (M,) inf: not upstream
+    reached = up_dist - net.lane_length[lane] < search
+    agap = up_dist - on_lane + back_i - driver.min_gap
+    agap = jnp.where(net.upstream_minor[target, lane], jnp.maximum(agap, 0.0), agap)
+    ok = jnp.isfinite(up_dist) & reached & scene.others
+    agap_j = jnp.where(ok, agap, jnp.inf)  # (M,)
     missing = follow.secure_gap(driver, scene.speed, scene.speed[i]) - agap_j
     up_slot = jnp.argmax(jnp.where(jnp.isfinite(agap_j), missing, -jnp.inf))
     has_up = jnp.isfinite(agap_j[up_slot])
