@@ -5,7 +5,7 @@ SUMO's ``MSNet::simulationStep`` moves every vehicle
 (``MSEdgeControl::changeLanes``), then inserts. `LaneChanger` is that middle
 phase for a roundabout with two-lane roads: every vehicle's LC2013 memory
 is reset for the step (``MSLCM_LC2013::prepareStep``, at the end of
-``executeMove``), then `jaxround.lanes.ring_turns` (one vehicle after
+``executeMove``), then `jaxround.lanes.ring_batches` (one vehicle after
 another: cheaper on a CPU) or `jaxround.lanes.ring_rounds` (all at once in
 rounds, the same changes: cheaper on a GPU) moves vehicles between lane
 paths, which are the step's routes (`jaxround.lanes.ring_network`).
@@ -27,7 +27,7 @@ from jaxround.core.network import CompiledNetwork
 from jaxround.core.params import CarFollowing
 from jaxround.core.state import EnvState
 from jaxround.envs.lane_view import lane_request
-from jaxround.lanes import ring_changer, ring_rounds, ring_turns
+from jaxround.lanes import ring_batches, ring_changer, ring_rounds
 from jaxround.lanes.best_lanes import LookAheadDriver
 from jaxround.lanes.entry_hold import held_by_approaching, held_by_occupied
 from jaxround.lanes.follow import Driver
@@ -230,7 +230,7 @@ class LaneChanger:
                 self.arrays, veh, memory, lc, self.dt
             )
         else:
-            result, memory = ring_turns.change_lanes(
+            result, memory = ring_batches.change_lanes(
                 self.arrays, veh, memory, lc, self.dt
             )
         changed = active & (result.direction != 0)

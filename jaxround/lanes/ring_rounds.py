@@ -1,5 +1,5 @@
 """Every vehicle's lane-change turn at once, in rounds until nothing moves:
-the changes, memory and sight of `jaxround.lanes.ring_turns.change_lanes`
+the changes, memory and sight of `jaxround.lanes.ring_batches.change_lanes`
 without its M turns one after another.
 
 A turn depends only on the turns before it in SUMO's order
@@ -88,7 +88,7 @@ def turns_in_rounds(
     lc: LaneChangeParams,
     dt: float,
 ) -> tuple[RingChanges, Memory, jax.Array]:
-    """`jaxround.lanes.ring_turns.change_lanes`, in rounds (`change_lanes`:
+    """`jaxround.lanes.ring_batches.change_lanes`, in rounds (`change_lanes`:
     with the gradient of the turns one by one, `ring_turns.scan_gradient`).
 
     Returns:

@@ -13,8 +13,9 @@ one of the same turns taken by a `lax.scan` over every slot
 (`turns_of_every_slot`), whose values are the same, recomputed in the
 backward pass (`scan_gradient`): the gradient is exact, as through the
 rest of the step, and costs the scan only where one is taken.
-`jaxround.lanes.ring_rounds` (the turns in rounds, for GPUs) gets it the
-same way.
+`jaxround.lanes.ring_batches` (the step's `change_lanes`, batched two
+roundabouts to a lane) and `jaxround.lanes.ring_rounds` (the turns in
+rounds, for GPUs) get it the same way.
 
 Shapes: M vehicle slots, L lanes, as in `jaxround.lanes.ring_changer`.
 """
@@ -164,9 +165,3 @@ def scan_gradient(forward: Callable[..., tuple]) -> Callable[..., tuple]:
 
     return call
 
-
-#: Every vehicle's lane change for one step, one turn after another in
-#: SUMO's order: ``change_lanes(net, veh, memory, lc, dt) -> (RingChanges,
-#: Memory)``; `veh` after this step's move, `memory` after
-#: `jaxround.lanes.memory.prepare_step`, `lc` scalars or (M,).
-change_lanes = scan_gradient(turns_of_vehicles)

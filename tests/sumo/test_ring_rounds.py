@@ -15,7 +15,7 @@ import pytest
 
 from jaxround.apps.ring_lane_record import record_sumo
 from jaxround.apps.ring_lane_replay import SlotBook, arrays, tables_for
-from jaxround.lanes import ring_rounds, ring_turns
+from jaxround.lanes import ring_batches, ring_rounds
 from jaxround.lanes.params import LaneChangeParams
 from jaxround.lanes.views import Memory
 from jaxround.scenario.config import load_config
@@ -31,7 +31,7 @@ def test_rounds_give_the_changes_of_the_turns_one_by_one() -> None:
     steps, _ = record_sumo(cfg, tables.paths, 240.0, make_schedule(cfg, 1))
     net, book = arrays(cfg, tables), SlotBook.for_steps(cfg, steps)
     lc, dt = LaneChangeParams(), cfg.simulation.dt_s
-    one_by_one = jax.jit(ring_turns.change_lanes, static_argnums=4)
+    one_by_one = jax.jit(ring_batches.change_lanes, static_argnums=4)
     in_rounds = jax.jit(ring_rounds.change_lanes, static_argnums=4)
     memory = Memory.zeros(book.n_slots)
     rounds: Counter = Counter()

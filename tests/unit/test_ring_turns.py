@@ -13,7 +13,7 @@ import pytest
 
 from jaxround.envs.rollout import uncontrolled_policy
 from jaxround.envs.roundabout import make
-from jaxround.lanes import ring_changer, ring_rounds, ring_turns
+from jaxround.lanes import ring_batches, ring_changer, ring_rounds, ring_turns
 from jaxround.lanes.views import Memory
 from jaxround.scenario.schedule import make_schedule
 
@@ -112,6 +112,46 @@ def test_the_vehicles_turns_are_every_slots_turns(episode) -> None:
     grad_scan = jax.jit(jax.grad(lambda v: summary(ring_turns.turns_of_every_slot, v)))
     want = np.asarray(grad_scan(veh.speed))
     assert np.any(want[np.asarray(veh.active)] != 0)
-    for change in (ring_turns.change_lanes, in_rounds):  # the GPUs' changer too
+    for change in (ring_batches.change_lanes, in_rounds):  # the GPUs' changer too
         grad = jax.jit(jax.grad(lambda v, change=change: summary(change, v)))
         np.testing.assert_allclose(np.asarray(grad(veh.speed)), want, rtol=1e-6)
+
+
+@pytest.mark.parametrize("batch", [7, 16])
+def test_a_batch_two_to_a_lane_takes_each_roundabouts_turns(episode, batch) -> None:
+    """Under `vmap`, `ring_batches` (two roundabouts to a lane of the loop,
+    an odd batch leaving one alone) gives each roundabout the changes and
+    memory of its own loop (`turns_of_vehicles`), per-roundabout parameters
+    and a second `vmap` included."""
+    env, params, (states, _, _) = episode
+    changer = env.lane_changer
+    dt = changer.dt
+    steps = np.linspace(STEPS - 200, STEPS - 1, batch).astype(int)
+    batched = jax.tree.map(lambda x: x[steps], states)
+    veh, memory = jax.vmap(changer.vehicles)(batched)
+    lc = jax.tree.map(
+        lambda x: jnp.broadcast_to(x, (batch,)), params.lane_change
+    ).replace(cooperative=jnp.linspace(0.2, 1.0, batch))
+    turns = ring_changer.context
+    n_turns = jax.vmap(lambda v, p: turns(changer.arrays, v, p, dt).decides.sum())(
+        veh, lc
+    )
+    assert len(set(np.asarray(n_turns).tolist())) > 2  # the pairs differ
+
+    def one(change):
+        return lambda v, m, p: change(changer.arrays, v, m, p, dt)
+
+    want = jax.jit(jax.vmap(one(ring_turns.turns_of_vehicles)))(veh, memory, lc)
+    got = jax.jit(jax.vmap(one(ring_batches.change_lanes)))(veh, memory, lc)
+    twice = jax.jit(jax.vmap(jax.vmap(one(ring_batches.change_lanes))))(
+        *jax.tree.map(lambda x: jnp.stack([x, x]), (veh, memory, lc))
+    )
+    assert int(jnp.sum(want[0].direction != 0)) > 0
+    for result in (got, jax.tree.map(lambda x: x[1], twice)):
+        for a, b in zip(jax.tree.leaves(result), jax.tree.leaves(want), strict=True):
+            a, b = np.asarray(a), np.asarray(b)
+            if np.issubdtype(a.dtype, np.floating):
+                # XLA may sum in another order for another batch
+                np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-6)
+            else:
+                np.testing.assert_array_equal(a, b)

@@ -10,7 +10,7 @@ first ``--skip`` seconds (the ring filling up). Timed, each as one jitted
 ``vmap`` over the B roundabouts (compilation not timed; repeated until a
 second has passed or seven times, the median reported):
 
-- the changer one turn after another (`jaxround.lanes.ring_turns`);
+- the changer one turn after another (`jaxround.lanes.ring_batches`);
 - the changer in rounds (`jaxround.lanes.ring_rounds`), which runs as many
   rounds as the batch's slowest step needs;
 - Milan's whole single-lane step at the same batch
@@ -45,7 +45,7 @@ from jaxround.apps.bench.jax_timing import (
 from jaxround.apps.ring_lane_record import record_sumo
 from jaxround.apps.ring_lane_replay import SlotBook, arrays, tables_for
 from jaxround.envs.roundabout import make
-from jaxround.lanes import ring_rounds, ring_turns
+from jaxround.lanes import ring_batches, ring_rounds
 from jaxround.lanes.params import LaneChangeParams
 from jaxround.lanes.views import Memory
 from jaxround.scenario.config import load_config
@@ -102,7 +102,7 @@ def measure(replayed: dict[str, Any], batch: int, skip_s: float) -> dict[str, An
     net, lc, dt = replayed["net"], replayed["lc"], replayed["dt"]
     vehicles = float(np.mean(np.sum(np.asarray(veh.active), axis=1)))
     sequential = jax.jit(
-        jax.vmap(functools.partial(ring_turns.change_lanes, net, lc=lc, dt=dt))
+        jax.vmap(functools.partial(ring_batches.change_lanes, net, lc=lc, dt=dt))
     )
     in_rounds = jax.jit(
         jax.vmap(functools.partial(ring_rounds.change_lanes, net, lc=lc, dt=dt))
