@@ -118,8 +118,8 @@ class Context(NamedTuple):
     """What every turn of one step reads: the network, the vehicles after
     the move (`RingVehicles`), the parameters, and where the vehicles stand
     before any change ((M,) each: path position ``k``, ``lane``, ``on_lane``
-    position (m), ``brutto`` length + minGap (m); (M, L) ``v_max_on``
-    `getVehicleMaxSpeed` on every lane), ``order`` (M,) their turns, and
+    position (m), ``brutto`` length + minGap (m)), ``order`` (M,) their
+    turns, and
     ``decides`` bool (M,) the vehicle is on an edge with a changer."""
 
     net: RingArrays
@@ -130,9 +130,16 @@ class Context(NamedTuple):
     lane: jax.Array
     on_lane: jax.Array
     brutto: jax.Array
-    v_max_on: jax.Array
     order: jax.Array
     decides: jax.Array
+
+    def v_max(self, slot: jax.Array, lane: jax.Array) -> jax.Array:
+        """`MSLane::getVehicleMaxSpeed` of the vehicles in ``slot`` on
+        ``lane`` (same shapes)."""
+        driver, speed_factor = self.veh.driver, self.veh.speed_factor
+        return jnp.minimum(
+            driver.max_speed[slot], self.net.lane_speed[lane] * speed_factor[slot]
+        )
 
 
 class View(NamedTuple):
@@ -186,12 +193,8 @@ def context(
     decides = veh.active & (net.change_path[veh.path, k] >= 0).any(axis=-1)
     order = jnp.lexsort((net.lane_index[lane], -on_lane, net.lane_order[lane],
                          ~decides, ~veh.active))  # fmt: skip
-    v_max_on = jnp.minimum(
-        veh.driver.max_speed[:, None],
-        net.lane_speed[None, :] * veh.speed_factor[:, None],
-    )
     brutto = veh.driver.length + veh.driver.min_gap
-    return Context(net, veh, lc, dt, k, lane, on_lane, brutto, v_max_on, order, decides)
+    return Context(net, veh, lc, dt, k, lane, on_lane, brutto, order, decides)
 
 
 def turn(ctx: Context, i: jax.Array, view: View, memory: Memory) -> Outcome:
@@ -215,7 +218,7 @@ def turn(ctx: Context, i: jax.Array, view: View, memory: Memory) -> Outcome:
         return Neighbour(
             exists=exists, gap=jnp.where(exists, gap, FAR), speed=veh.speed[slot],
             accel=veh.accel[slot], driver=_pick(driver, slot),
-            v_max=ctx.v_max_on[slot, lane[slot]],
+            v_max=ctx.v_max(slot, lane[slot]),
         )  # fmt: skip
 
     # occupation: dens on this edge + nextOccupation beyond it
@@ -240,7 +243,7 @@ def turn(ctx: Context, i: jax.Array, view: View, memory: Memory) -> Outcome:
     def ego_view(target):
         return Ego(
             speed=veh.speed[i], accel=veh.accel[i], pos=pos_i, driver=me,
-            v_max=ctx.v_max_on[i, own], neigh_v_max=ctx.v_max_on[i, target],
+            v_max=ctx.v_max(i, own), neigh_v_max=ctx.v_max(i, target),
             speed_limit=net.lane_speed[own], lane_length=net.lane_length[own],
         )  # fmt: skip
 

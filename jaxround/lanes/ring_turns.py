@@ -164,4 +164,3 @@ def scan_gradient(forward: Callable[..., tuple]) -> Callable[..., tuple]:
         return changed(net, veh, memory, lc, dt)
 
     return call
-
