@@ -12,12 +12,14 @@ more than twice the turns it keeps.
 its own (`jax.custom_batching.custom_vmap`): the roundabouts are ranked by
 the turns they need, and the loop runs over half the batch, its j-th lane
 taking every turn of the j-th busiest roundabout, then every turn of the
-j-th least busy one. The loop runs as long as the longest pair (25 turns
-for the batch above, at half its width: 43% of the turns computed
-before). Each roundabout still takes its turns one after another, as the
-same `ring_turns.take`, so its changes and memory are those of
-`turns_of_vehicles` (`tests/unit/test_ring_batches.py`; floats to their
-rounding, which XLA may do in another order for another batch).
+j-th least busy one. The loop runs as long as the longest pair (44.6
+turns on average for the batch above, at half its width: 57% of the
+turns computed before; the changer alone took 30-33 ms per call instead
+of 39-40 there, docs/benchmarks.md). Each roundabout still takes its
+turns one after another, as the same `ring_turns.take`, so its changes
+and memory are those of `turns_of_vehicles`
+(`tests/unit/test_ring_turns.py`; floats to their rounding, which XLA may
+do in another order for another batch).
 
 Shapes: B roundabouts, H = ceil(B / 2) lanes of the loop, M vehicle slots.
 """
@@ -113,7 +115,8 @@ def _batched_turns(
         return carry, outcome._replace(to_lane=ctx.lane, to_path=veh_b.path)
 
     def lane_turn(a, b, n_a, n_b, t, state_a, state_b) -> tuple:  # noqa: ANN001
-        """Turn t of a loop lane: turn t of roundabout a, else turn t - n_a of b."""
+        """Turn t of a loop lane: turn t of roundabout a, else turn t - n_a of
+        b (past the end of both: a turn whose outcome is dropped)."""
         on_a = t < n_a
         pick = functools.partial(jax.tree.map, lambda x, y: jnp.where(on_a, x, y))
         net_r, veh_r, lc_r, standing_r = pick(a, b)
