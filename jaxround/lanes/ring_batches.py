@@ -44,6 +44,7 @@ from jaxround.lanes.ring_changer import (
 )
 from jaxround.lanes.ring_turns import (
     first_carry,
+    first_outcome,
     for_changes,
     scan_gradient,
     take,
@@ -109,10 +110,7 @@ def _batched_turns(
     def start(net_b, veh_b, lc_b, standing_b, memory_b) -> tuple:  # noqa: ANN001
         ctx = Context(net_b, veh_b, lc_b, dt, *standing_b)
         carry = first_carry(ctx, memory_b)
-        shapes = jax.eval_shape(lambda: for_changes(take(ctx, carry, ctx.order[0])[1]))
-        m = veh_b.pos.shape[0]
-        outcome = jax.tree.map(lambda x: jnp.zeros((m, *x.shape), x.dtype), shapes)
-        return carry, outcome._replace(to_lane=ctx.lane, to_path=veh_b.path)
+        return carry, first_outcome(ctx, carry)
 
     def lane_turn(a, b, n_a, n_b, t, state_a, state_b) -> tuple:  # noqa: ANN001
         """Turn t of a loop lane: turn t of roundabout a, else turn t - n_a of

@@ -87,6 +87,15 @@ def for_changes(out: Outcome) -> Outcome:
     return out._replace(state=None, kept=None, told=None, blocked=None, target=None)
 
 
+def first_outcome(ctx: Context, carry: Carry) -> Outcome:
+    """Every slot's `for_changes` outcome before any turn (M, ...): no
+    change, what the slots without a turn keep."""
+    shapes = jax.eval_shape(lambda: for_changes(take(ctx, carry, ctx.order[0])[1]))
+    m = ctx.veh.pos.shape[0]
+    outcome = jax.tree.map(lambda x: jnp.zeros((m, *x.shape), x.dtype), shapes)
+    return outcome._replace(to_lane=ctx.lane, to_path=ctx.veh.path)
+
+
 def turns_of_vehicles(
     net: RingArrays,
     veh: RingVehicles,
@@ -98,11 +107,8 @@ def turns_of_vehicles(
     them; every other slot's outcome is "no change" (as its turn would
     give)."""
     ctx = context(net, veh, lc, dt)
-    m = veh.pos.shape[0]
     init = first_carry(ctx, memory)
-    shapes = jax.eval_shape(lambda: for_changes(take(ctx, init, ctx.order[0])[1]))
-    outcome = jax.tree.map(lambda x: jnp.zeros((m, *x.shape), x.dtype), shapes)
-    outcome = outcome._replace(to_lane=ctx.lane, to_path=veh.path)
+    outcome = first_outcome(ctx, init)
     n_turns = jnp.sum(ctx.decides)
 
     def more(loop: tuple[jax.Array, Carry, Outcome]) -> jax.Array:
