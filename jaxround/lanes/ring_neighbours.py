@@ -31,6 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxround.core.reductions import first_min
 from jaxround.lanes import follow
 from jaxround.lanes.follow import Driver
 from jaxround.lanes.ring_tables import BONUS_LOOK_AHEAD_M, RingLanes
@@ -186,8 +187,8 @@ def leader_on(
         jnp.any(same), within(same),
         jnp.where(jnp.any(partly), within(partly, partly_gap), within(later)),
     )  # fmt: skip
-    slot = jnp.argmin(first)
-    return slot, jnp.isfinite(first[slot]), first[slot]
+    gap_to, slot = first_min(first)
+    return slot, jnp.isfinite(gap_to), gap_to
 
 
 def follower_on(
@@ -208,12 +209,12 @@ def follower_on(
     ok = jnp.isfinite(up_dist) & reached & scene.others
     agap_j = jnp.where(ok, agap, jnp.inf)  # (M,)
     missing = follow.secure_gap(driver, scene.speed, scene.speed[i]) - agap_j
-    up_slot = jnp.argmax(jnp.where(jnp.isfinite(agap_j), missing, -jnp.inf))
+    _, up_slot = first_min(jnp.where(jnp.isfinite(agap_j), -missing, jnp.inf))
     has_up = jnp.isfinite(agap_j[up_slot])
-    same_slot = jnp.argmin(d_same)
-    has_same = jnp.isfinite(d_same[same_slot])
+    same_gap, same_slot = first_min(d_same)
+    has_same = jnp.isfinite(same_gap)
     slot = jnp.where(has_same, same_slot, up_slot)
-    gap = jnp.where(has_same, d_same[same_slot], agap_j[up_slot])
+    gap = jnp.where(has_same, same_gap, agap_j[up_slot])
     return slot, has_same | has_up, gap
 
 

@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from jaxround.core.reductions import first_min
 from jaxround.lanes.follow import Driver
 
 #: How many speed advices a vehicle can hold for its next step.
@@ -118,7 +119,13 @@ class Memory:
 def push_advice(advices: jax.Array, speed: jax.Array) -> jax.Array:
     """`addLCSpeedAdvice`: ``speed`` into the first empty slot of (A,)
     ``advices`` (NaN ``speed``: nothing; a full row keeps its A smallest)."""
+    n = advices.shape[0]
     empty = jnp.isnan(advices)
-    slot = jnp.where(jnp.any(empty), jnp.argmax(empty), jnp.argmax(advices))
-    keep = jnp.isnan(speed) | (~jnp.any(empty) & (speed >= advices[slot]))
+    # the first empty slot, else the first largest advice (as jnp.argmax, in
+    # two one-operand reductions: `jaxround.core.reductions`)
+    first_empty = jnp.min(jnp.where(empty, jnp.arange(n), n))
+    full = first_empty == n
+    _, largest = first_min(jnp.where(empty, jnp.inf, -advices))
+    slot = jnp.where(full, largest, first_empty)
+    keep = jnp.isnan(speed) | (full & (speed >= advices[slot]))
     return jnp.where(keep, advices, advices.at[slot].set(speed))
