@@ -57,7 +57,9 @@ def take(ctx: Context, carry: Carry, i: jax.Array) -> tuple[Carry, Outcome]:
     own = ctx.lane[i]
     view = View(lane, done, last_blocked[own], first_blocked[own],
                 mem.state[i], mem.advices[i])  # fmt: skip
-    out = turn(ctx, i, view, mem)
+    # materialised once: XLA would otherwise recompute the turn's long
+    # elementwise chain inside each of the fusions that read its outcome
+    out = jax.lax.optimization_barrier(turn(ctx, i, view, mem))
     mem = keep(deliver(mem, out.told), i, out.kept)
     mem = mem.replace(state=mem.state.at[i].set(out.state))
     slots = jnp.arange(done.shape[0])
