@@ -191,8 +191,12 @@ def context(
     SUMO has no changer there), empty slots last."""
     k, lane, on_lane = locate(net, veh.path, veh.pos)
     decides = veh.active & (net.change_path[veh.path, k] >= 0).any(axis=-1)
-    order = jnp.lexsort((net.lane_index[lane], -on_lane, net.lane_order[lane],
-                         ~decides, ~veh.active))  # fmt: skip
+    # (~active, ~decides, lane order) as one key: a sort of three keys, not five
+    n_lanes = net.lane_order.shape[0]
+    group = net.lane_order[lane] + n_lanes * (
+        (~decides).astype(jnp.int32) + 2 * (~veh.active).astype(jnp.int32)
+    )
+    order = jnp.lexsort((net.lane_index[lane], -on_lane, group))
     brutto = veh.driver.length + veh.driver.min_gap
     return Context(net, veh, lc, dt, k, lane, on_lane, brutto, order, decides)
 
