@@ -79,7 +79,8 @@ def assert_same_numbers(got, want) -> None:
 
 def test_the_vehicles_turns_are_every_slots_turns(episode) -> None:
     """On 200 steps' states, the loop and the scan give the same changes and
-    memory, and the same gradient (the loop's is the scan's, recomputed)."""
+    memory (floats to their rounding), and the same gradient (the loop's is
+    the scan's, recomputed)."""
     env, params, (states, _, _) = episode
     changer = env.lane_changer
     lc = params.lane_change
