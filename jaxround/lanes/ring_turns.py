@@ -57,8 +57,8 @@ def take(ctx: Context, carry: Carry, i: jax.Array) -> tuple[Carry, Outcome]:
     own = ctx.lane[i]
     view = View(lane, done, last_blocked[own], first_blocked[own],
                 mem.state[i], mem.advices[i])  # fmt: skip
-    # materialised once: XLA would otherwise recompute the turn's long
-    # elementwise chain inside each of the fusions that read its outcome
+    # the barrier measured faster on the CPU (docs/benchmarks.md, 2026-11-28:
+    # 23 against 25-26 ms per call at batch 256); XLA expands it before fusion
     out = jax.lax.optimization_barrier(turn(ctx, i, view, mem))
     mem = keep(deliver(mem, out.told), i, out.kept)
     mem = mem.replace(state=mem.state.at[i].set(out.state))
