@@ -11,7 +11,9 @@ all of them (docs/lc2013-map.md section 12, "What holds it back"). The
 first form lists those vehicle-steps on right entry lanes wanting the left
 lane; the second saves SUMO's state before the given step and runs that
 step again with other vehicles removed (every one, then each one kept
-alone), and reports the vehicles that alone hold the change.
+alone), and reports the vehicles that alone hold the change. The rule
+itself was later read from 1.28's compiled lane changer; the JAX step holds
+as it does (`jaxround.lanes.entry_hold`).
 """
 
 from __future__ import annotations

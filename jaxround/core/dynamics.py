@@ -12,6 +12,7 @@ approach.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -20,7 +21,7 @@ from jaxround.core import command as traci
 from jaxround.core import finalize, idm, planning, right_of_way
 from jaxround.core.geometry import NetArrays
 from jaxround.core.insertion import STOP_OFFSET
-from jaxround.core.junction import brake_gap
+from jaxround.core.junction import Approach, brake_gap
 from jaxround.core.neighbours import build_tables
 from jaxround.core.params import CarFollowing
 from jaxround.core.planning import (
@@ -51,6 +52,28 @@ DEPART_OFFSET = 0.1
 ARRIVAL_EPS = 0.1
 
 
+class Planned(NamedTuple):
+    """`planned_speed`'s outcome. (M,) each unless said.
+
+    Attributes:
+        v_next: the speed at the end of the step (m/s).
+        regs: this step's registrations, (M, G).
+        blocked: bool, held at the yield line.
+        leader, gap: the slot ahead on the vehicle's lanes (-1 for none), and
+            the gap to it (m).
+        own_entry: every vehicle's approach to its own entry link, the drive
+            item it registered and tested (times absolute; meaningful before
+            its yield line).
+    """
+
+    v_next: jax.Array
+    regs: Registrations
+    blocked: jax.Array
+    leader: jax.Array
+    gap: jax.Array
+    own_entry: Approach
+
+
 def planned_speed(
     net: NetArrays,
     params: CarFollowing,
@@ -67,7 +90,7 @@ def planned_speed(
     action_step: float,
     command: jax.Array | None = None,
     patch: SpeedPatch | None = None,
-) -> tuple[jax.Array, Registrations, jax.Array, jax.Array, jax.Array]:
+) -> Planned:
     """Every vehicle's speed at the end of the step, as SUMO's IDM plans it:
     the phases of `jaxround.core.planning` and `jaxround.core.right_of_way`
     in SUMO's order.
@@ -86,9 +109,7 @@ def planned_speed(
             bounds (two-lane roads: `jaxround.envs.lane_changes`); None: none.
 
     Returns:
-        (v_next, regs, blocked, leader, gap): float (M,), this step's
-        registrations, bool (M,) held at the yield line, int (M,) the slot
-        ahead on the vehicle's lanes (-1 for none), float (M,) the gap to it.
+        `Planned`.
     """
     car = params
     veh = Vehicles(route, pos, speed, speed_factor, active, waiting_s)
@@ -119,7 +140,7 @@ def planned_speed(
     # link leaders at every merge of the look-ahead, not only the next one
     v_follow = jnp.minimum(v_follow, jnp.min(ahead.v_link_k, axis=1))
     with jax.named_scope("entry_test"):
-        blocked_w = right_of_way.entry_test(
+        blocked_w, own_entry = right_of_way.entry_test(
             net, car, veh, start, line, ahead, requests, t, step=step
         )
         v_hold = right_of_way.next_link_wait(
@@ -131,7 +152,8 @@ def planned_speed(
             v_follow=v_follow, v_hold=v_hold, blocked_w=blocked_w, step=step,
             command=command, patch=patch,
         )  # fmt: skip
-    return v_next, requests.regs, blocked_w > 0.5, leader.slot, leader.gap
+    return Planned(v_next, requests.regs, blocked_w > 0.5, leader.slot, leader.gap,
+                   own_entry)  # fmt: skip
 
 
 def final_speed(

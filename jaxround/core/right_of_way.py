@@ -17,6 +17,7 @@ from jaxround.core import idm
 from jaxround.core.geometry import NetArrays
 from jaxround.core.insertion import STOP_OFFSET
 from jaxround.core.junction import (
+    Approach,
     brake_gap,
     entry_approach,
     entry_blocked,
@@ -228,11 +229,13 @@ def entry_test(
     t: jax.Array,
     *,
     step: Stepping,
-) -> jax.Array:
+) -> tuple[jax.Array, Approach]:
     """MSLink::opened in executeMove: the entry tested against this step's
-    registrations. Returns float (M,): a weight, exactly 0 (open) or 1
-    (blocked) unless the dynamics are relaxed (`jaxround.core.relax`); 0 for
-    vehicles past their line."""
+    registrations. Returns (weight, approach): float (M,), exactly 0 (open)
+    or 1 (blocked) unless the dynamics are relaxed (`jaxround.core.relax`),
+    0 for vehicles past their line; and every vehicle's approach to its own
+    entry link, the drive item it registered and tested (the lane changer's
+    hold reads it: `jaxround.lanes.entry_hold`)."""
     route, dt = veh.route, step.dt
     entry_has, entry_slot, entry_gap = on_entry_lane(net, ahead.rearmost)
     follow = partial(follow_from, car=car, v_lane=start.v_lane, step=step)
@@ -249,7 +252,7 @@ def entry_test(
         impatience_now[cand], t + dt, dt, ego_slot=cand,
     )  # fmt: skip
     blocked_w = jnp.zeros(veh.pos.shape[0]).at[cand].max(weight * requests.candidate_ok)
-    return blocked_w * line.before_line
+    return blocked_w * line.before_line, ego
 
 
 #: SUMO's DIST_TO_STOPLINE_EXPECT_PRIORITY (MSVehicle.cpp): where a vehicle

@@ -23,13 +23,18 @@ from flax import struct
 
 from jaxround.core.dynamics import SpeedPatch
 from jaxround.core.geometry import NetArrays
+from jaxround.core.junction import Approach
 from jaxround.core.network import CompiledNetwork
 from jaxround.core.params import CarFollowing
 from jaxround.core.state import EnvState
 from jaxround.envs.lane_view import lane_request
 from jaxround.lanes import ring_batches, ring_changer, ring_rounds
 from jaxround.lanes.best_lanes import LookAheadDriver
-from jaxround.lanes.entry_hold import held_by_approaching, held_by_occupied
+from jaxround.lanes.entry_hold import (
+    held_by_approaching,
+    held_by_occupied,
+    held_by_parallel_link,
+)
 from jaxround.lanes.follow import Driver
 from jaxround.lanes.memory import patch_speed, prepare_step
 from jaxround.lanes.params import LaneChangeParams
@@ -43,7 +48,7 @@ from jaxround.sumo_files.compile import compile_network
 #: (speedFactor normc(1, 0.1, 0.2, 2)): the followers' search distance.
 MAX_SPEED_FACTOR = 2.0
 #: `LaneChanger`'s choices for the hold at entries.
-HOLD_MODES = ("off", "occupied", "approaching")
+HOLD_MODES = ("parallel", "off", "occupied", "approaching")
 
 
 @struct.dataclass
@@ -108,12 +113,12 @@ class LaneChanger:
         net_file: its `.net.xml` (the paths' numbering is `lane_paths`').
         in_rounds: `ring_rounds` instead of the turns one by one; None:
             rounds on an accelerator, turns on a CPU.
-        hold_entries: hold back a change to an entry lane while a foe
-            link's internal lane is occupied (``"occupied"``) or also while
-            a registered foe would be in the way (``"approaching"``), as
-            `jaxround.lanes.entry_hold` reads SUMO 1.28's hold; ``"off"``
-            (the default): never. Neither reading is SUMO's rule: each moves
-            the step away from SUMO somewhere (figures in that module).
+        hold_entries: how a change onto the other entry lane is held back
+            (`jaxround.lanes.entry_hold`): ``"parallel"`` (the default) as
+            SUMO 1.28 does, while that lane's entry link would be closed to
+            the vehicle's own approach; ``"off"``: never; ``"occupied"``
+            and ``"approaching"``: two earlier readings, kept for
+            comparison (figures in that module).
     """
 
     def __init__(
@@ -121,7 +126,7 @@ class LaneChanger:
         cfg: ScenarioConfig,
         net_file: str | Path,
         in_rounds: bool | None = None,
-        hold_entries: str = "off",
+        hold_entries: str = "parallel",
     ) -> None:
         if hold_entries not in HOLD_MODES:
             raise ValueError(
@@ -180,12 +185,28 @@ class LaneChanger:
         )  # fmt: skip
         return veh, memory
 
-    def holds(self, state: EnvState, net: NetArrays, car: CarFollowing) -> jax.Array:
+    def holds(
+        self,
+        state: EnvState,
+        net: NetArrays,
+        car: CarFollowing,
+        own_entry: Approach | None = None,
+    ) -> jax.Array:
         """bool (M, 2): where a change right / left would be held back at the
         target lane's entry (`jaxround.lanes.entry_hold`), from ``state``
-        after the move: the occupied foe lanes, and the registered foes too
-        under ``hold_entries="approaching"`` (whatever the mode, the step
-        uses this only when the mode is not ``"off"``)."""
+        after the move: SUMO 1.28's test of the target lane's entry link
+        against each vehicle's own approach (``own_entry``) under
+        ``hold_entries="parallel"``; otherwise the occupied foe lanes, and
+        the registered foes too under ``"approaching"`` (whatever the mode,
+        the step uses this only when the mode is not ``"off"``)."""
+        if self.hold_entries == "parallel":
+            if own_entry is None:
+                raise ValueError('hold_entries="parallel" needs own_entry')
+            t = (state.step - 1).astype(jnp.float32) * self.dt  # the step's start
+            return held_by_parallel_link(
+                net, self.arrays, car, state.route, state.pos, state.active,
+                state.waiting_s, state.registrations, own_entry, t, self.dt,
+            )  # fmt: skip
         held = held_by_occupied(
             net, self.arrays, state.route, state.pos, car.length, state.active
         )
@@ -204,6 +225,7 @@ class LaneChanger:
         request: jax.Array | None = None,
         net: NetArrays | None = None,
         car: CarFollowing | None = None,
+        own_entry: Approach | None = None,
     ) -> tuple[EnvState, jax.Array]:
         """Change lanes after the move (arrivals gone, insertions not yet).
 
@@ -214,6 +236,9 @@ class LaneChanger:
             request: int (M,) a lane index TraCI asks for (-1: none), or None.
             net, car: the step's network and each vehicle's car-following
                 numbers, for the hold at entries (None: no hold).
+            own_entry: each vehicle's approach to its own entry link, as the
+                step registered it (`jaxround.core.dynamics.Planned`), for
+                the hold of ``hold_entries="parallel"``.
 
         Returns:
             (state, direction): the state on its new paths, and int (M,)
@@ -223,7 +248,7 @@ class LaneChanger:
         active = state.active
         hold = None
         if self.hold_entries != "off" and net is not None and car is not None:
-            hold = self.holds(state, net, car)
+            hold = self.holds(state, net, car, own_entry)
         veh, memory = self.vehicles(state, request, hold)
         if self.in_rounds:
             result, memory, _ = ring_rounds.change_lanes(

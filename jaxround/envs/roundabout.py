@@ -261,7 +261,7 @@ class RoundaboutEnv:
             request = changer and changer.request(state, action[:, 1], agent)
         lc = LaneChangeParams() if p.lane_change is None else p.lane_change
         patch = changer and changer.patch(state, lc)
-        v_next, regs, _, leader, gap = dynamics.planned_speed(
+        v_next, regs, _, leader, gap, own_entry = dynamics.planned_speed(
             net, pv, state.route, state.pos, state.speed, state.speed_factor,
             state.active, state.waiting_s, state.registrations, t, self.dt,
             self.n_substeps, self.action_step, command=command, patch=patch,
@@ -335,7 +335,7 @@ class RoundaboutEnv:
         # 3. lane changes (two-lane roads), insertions, the queues of the new time
         if self.lane_changer is not None:
             with jax.named_scope("lane_changes"):
-                state, _ = self.lane_changer(state, lc, request, net, pv)
+                state, _ = self.lane_changer(state, lc, request, net, pv, own_entry)
         with jax.named_scope("insertion"):
             state = self._insert(state, p, t + self.dt)
         with jax.named_scope("queues"):

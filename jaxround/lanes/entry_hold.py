@@ -1,45 +1,53 @@
-"""The changer's last check before an entry: a foe at the target lane's
-entry link holds the change back.
+"""The changer's last check before an entry: a change onto the other entry
+lane is held back while that lane's entry link would not be open to the
+vehicle.
 
-SUMO's `MSLaneChanger::checkChange` ends a wanted, unblocked change with
-`MSVehicle::unsafeLinkAhead(targetLane)`: the minor links ahead on the
-target lane are tested with `MSLink::hasApproachingFoe` at the times of the
-vehicle's own approach (its drive item), and a foe that would be in the
-way, or a vehicle on a foe link's internal lane, blocks the change. On a
-roundabout the only minor links are the entries, so the test is the one
-entry of the target lane, for a vehicle still before its yield line; a left
-entry lane's link has one foe more than the right one's (the outer ring
-lane's through link, which it crosses), so a change to it can be held where
-staying is not.
+SUMO 1.28's `MSLaneChanger::checkChange`, as its compiled code in the
+eclipse-sumo 1.28.0 wheel shows (`_libsumo.so` keeps its symbols; no 1.28
+source was at hand: docs/lc2013-map.md section 12, "What holds it back"),
+ends a wanted change that nothing blocked with two tests:
 
-`MSLink::hasApproachingFoe` has two halves: a foe link's registered
-vehicles whose times would conflict (`MSLink::blockedAtTime`), and a foe
-link's internal lane with a vehicle on it, partly or whole
-(`getVehicleNumberWithPartials`). `held_by_occupied` is the second,
-`held_by_approaching` the first (`MSLink::blockedByFoe` over the step's
-registrations on the link's foe through links, as `jaxround.core.junction`
-tests an entry, with `MSLink`'s 1 s look-ahead, no impatience, and the
-vehicle's approach planned from where the move left it). SUMO 1.28 holds
-changes at any distance from the line (the 2024 source only within the
-vehicle's braking distance), with every `LCA_BLOCKED` bit set
-(`jaxround.lanes.actions.HELD`, measured with
-`libsumo.vehicle.getLaneChangeState`), by a condition not in any source
-read here (docs/lc2013-map.md section 12, "What holds it back"). Both
-halves applied at any distance were measured in the step
-(`LaneChanger(hold_entries=...)`, 2026-11-27) and neither is SUMO's rule,
-so the step does not hold by default:
+- `MSVehicle::unsafeLinkAhead(targetLane, zipperDist)`: the minor links
+  ahead on the target lane within the vehicle's braking distance (at
+  headway 0; at least the edge's zipper distance, 0 without zipper links)
+  tested with `MSLink::hasApproachingFoe` at the times of the vehicle's own
+  drive item. Not ported (how often it holds was not measured).
+- new in 1.28 (apparently SUMO issue 17411, "a neighboring lane has additional foe
+  links to consider"), on an edge whose lanes' links differ in their foes
+  (`postloadInitLC`): for a vehicle on a normal lane whose link to its best
+  continuation is an entry link, that link's parallel link on the target
+  side (`MSLink::getParallelLink`) must be `opened` to the vehicle's own
+  registration on its link (`getApproachingPtr`: arrival time and speed,
+  leave speed), with its length, impatience and decel; a closed link sets
+  every `LCA_BLOCKED` bit (`jaxround.lanes.actions.HELD`, as
+  `libsumo.vehicle.getLaneChangeState` shows). No distance limit: a vehicle
+  registers on its entry from anywhere on the lane, and whether a foe is in
+  the way depends on when the vehicle would arrive.
 
-- both: 7,419 held vehicle-steps in the first 900 s of two_lane.yaml
-  where SUMO held 848; crossing times 51% over SUMO's (61.6 s against
-  40.7 s, human drivers, schedule seeds 0-2).
-- the occupied lanes alone: 1,090 held; against SUMO at 0 / 50 / 100%
-  uncontrolled AVs crossing time +1.2 / -1.7 / -0.5% and CO2 -0.0 / -2.2
-  / -1.4% (without the hold -1.6 / -3.4 / -1.8% and -3.3 / -4.7 /
-  -3.8%), but on the held-out five-leg roundabout +8.3% and +5.0%
-  (without: +4.2%, +1.6%), and decision by decision (the replay of
-  `jaxround.apps.ring_lane_replay`, 600 s) 312 of SUMO's 414 changes
-  made in the same step against 384 without it: it holds changes SUMO
-  makes.
+`held_by_parallel_link` is the second, the step's hold by default
+(`LaneChanger(hold_entries="parallel")`): the target lane's entry tested as
+`jaxround.core.junction.entry_blocked` tests a vehicle's own entry, with
+the approach the step registered and tested for it (`jaxround.core.dynamics.
+Planned.own_entry`). On two_lane.yaml, schedule seed 0, human drivers, it
+holds 839 vehicle-steps in the first 900 s where SUMO holds 848, and 286
+in the first 300 s against SUMO's 259 (`tests/sumo/test_entry_hold_sumo.py`).
+
+Two earlier readings, measured in the step before 1.28's code was read and
+kept for comparison (``hold_entries="occupied"`` and ``"approaching"``):
+
+- `held_by_approaching`, `hasApproachingFoe`'s half that tests a foe link's
+  registered vehicles (`MSLink::blockedByFoe` over the step's registrations
+  on the link's foe through links, with `MSLink`'s 1 s look-ahead, no
+  impatience, and the vehicle's approach planned from where the move left
+  it), at any distance, with the occupied lanes below: 7,419 held
+  vehicle-steps in the first 900 s where SUMO held 848; crossing times 51%
+  over SUMO's.
+- `held_by_occupied`, the other half (a foe link's internal lane with a
+  vehicle on it, `getVehicleNumberWithPartials`): 1,090 held; against SUMO
+  at 0 / 50 / 100% uncontrolled AVs crossing time +1.2 / -1.7 / -0.5% and
+  CO2 -0.0 / -2.2 / -1.4%, but the held-out five-leg roundabout +8.3% and
+  +5.0%, and decision by decision (`jaxround.apps.ring_lane_replay`, 600 s)
+  312 of SUMO's 414 changes made in the same step against 384 without it.
 
 Shapes: M vehicle slots, G entries.
 """
@@ -50,7 +58,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxround.core.geometry import NetArrays
-from jaxround.core.junction import entry_approach, entry_blocked
+from jaxround.core.junction import Approach, entry_approach, entry_blocked
 from jaxround.core.params import CarFollowing
 from jaxround.core.state import Registrations
 from jaxround.lanes.ring_changer import locate
@@ -115,8 +123,8 @@ def held_by_approaching(
 ) -> jax.Array:
     """bool (M, 2): a change right / left would be held back because a foe
     registered on a foe link of the target lane's entry would be in the way
-    (`hasApproachingFoe`'s first half; not used by the step, see the
-    module's docstring).
+    (`hasApproachingFoe`'s first half at any distance; an earlier reading,
+    see the module's docstring).
 
     Args:
         car: each vehicle's car-following numbers, (M,) or scalars.
@@ -138,4 +146,48 @@ def held_by_approaching(
         held.append(
             entry_blocked(net, foe_car, to, ego, regs, jnp.zeros(m), t + dt, dt)
         )
+    return (path >= 0) & jnp.stack(held, axis=1)
+
+
+def held_by_parallel_link(
+    net: NetArrays,
+    arrays: RingArrays,
+    car: CarFollowing,
+    route: jax.Array,
+    pos: jax.Array,
+    active: jax.Array,
+    waiting_s: jax.Array,
+    regs: Registrations,
+    own_entry: Approach,
+    t: jax.Array,
+    dt: float,
+) -> jax.Array:
+    """bool (M, 2): SUMO 1.28's hold of a change right / left before an
+    entry (the module's docstring): the target lane's entry link, tested
+    with the vehicle's own approach, is closed. Every edge with an entry
+    counts as one whose links differ in their foes (a left entry lane's link
+    crosses the outer ring lane, the right one's does not); `MSLink::opened`'s
+    distance argument is not read, as in the step's own entry test.
+
+    Args:
+        car: each vehicle's car-following numbers, (M,) or scalars.
+        route, pos, active, waiting_s: the vehicles after the move.
+        regs: the registrations of the step just moved (times absolute).
+        own_entry: each vehicle's approach to its own entry link as the step
+            registered it (`jaxround.core.dynamics.Planned.own_entry`).
+        t: the time at the start of the step just moved (s).
+    """
+    path, entry = targets(net, arrays, route, pos, active)
+    # getImpatience after the move (MSBaseVehicle: the waiting time counts)
+    impatience = jnp.clip(car.impatience + waiting_s / car.time_to_impatience, 0.0, 1.0)
+    held = []
+    for side in (0, 1):
+        to = jnp.maximum(path[:, side], 0)
+        # MSLink::getLeaveTime over the parallel link's own internal lane
+        speed = 0.5 * (own_entry.arrival_speed + own_entry.leave_speed)
+        leave = own_entry.arrival + (
+            net.entry_internal_length[entry[:, side]] + car.length
+        ) / jnp.maximum(speed, 1e-3)
+        ego = own_entry._replace(leave=leave)
+        held.append(entry_blocked(net, car, to, ego, regs, impatience, t + dt, dt))
     return (path >= 0) & jnp.stack(held, axis=1)

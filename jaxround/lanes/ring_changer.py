@@ -26,10 +26,10 @@ find it (SUMO's source as read in docs/lc2013-map.md section 2):
   the lanes' braking distance), the one whose secure gap is most
   violated, a vehicle coming over a minor link with its gap floored at 0.
 
-`unsafeLinkAhead` is `jaxround.lanes.entry_hold`'s, given as
-`RingVehicles.entry_hold`. Not here: link leaders (vehicles on a crossing
-or merging junction lane), `getCriticalLeader`, partial vehicles on the
-follower side, stops.
+SUMO 1.28's hold before an entry is `jaxround.lanes.entry_hold`'s, given
+as `RingVehicles.entry_hold`. Not here: link leaders (vehicles on a crossing
+or merging junction lane), `getCriticalLeader`, `unsafeLinkAhead`, partial
+vehicles on the follower side, stops.
 
 Shapes: M vehicle slots, L lanes, P paths, K path positions, Z lanes of an
 edge, C, U as in `jaxround.lanes.ring_tables`.

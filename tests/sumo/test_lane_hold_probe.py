@@ -1,14 +1,21 @@
 """SUMO 1.28's hold on a wanted change to the left entry lane
 (`jaxround.apps.lane_hold_probe`, docs/lc2013-map.md section 12): the
 vehicles that alone hold it are bound through the entry's junction on the
-ring, the foes of the left entry lane's link."""
+ring, the foes of the left entry lane's link; and the JAX step, holding as
+1.28's lane changer does (`jaxround.lanes.entry_hold`), holds about as
+often."""
 
 from __future__ import annotations
 
+import jax
+import jax.numpy as jnp
 import pytest
 
 from jaxround.apps.lane_hold_probe import held_steps, holders
+from jaxround.envs.roundabout import make
+from jaxround.lanes import actions as lca
 from jaxround.scenario.config import load_config
+from jaxround.scenario.schedule import make_schedule
 
 pytestmark = pytest.mark.sumo
 
@@ -33,3 +40,28 @@ def test_the_vehicles_that_hold_a_change_are_through_going_foes() -> None:
             assert route[route.index(before) + 1] == f"ring_{leg}"
             found += 1
     assert found > 0, "no vehicle found that alone holds a change"
+
+
+def test_the_step_holds_about_as_often_as_sumo() -> None:
+    """Held vehicle-steps (a wanted change to the left entry lane refused,
+    every `LCA_BLOCKED` bit set) in the first 300 s of schedule seed 0,
+    human drivers: SUMO 259, the JAX step 286 when written; without the
+    hold the step holds none."""
+    cfg = load_config("two_lane")
+    sumo = len(held_steps(cfg, 300.0))
+    env, params = make(cfg)
+    _, state = env.reset_to_schedule(
+        env.schedule_from_numpy(make_schedule(cfg, 0)), params
+    )
+    action = jnp.zeros((env.max_vehicles, 2))
+
+    def step(state):  # noqa: ANN001, ANN202
+        state = env.step_env(jax.random.PRNGKey(0), state, action, params)[1]
+        wish = state.lanes.memory.state  # the step's own state, HELD bits in
+        held = ((wish & lca.INSUFFICIENT_SPEED) != 0) & ((wish & lca.LEFT) != 0)
+        return state, jnp.sum(state.active & held)
+
+    _, held = jax.jit(lambda s: jax.lax.scan(lambda c, _: step(c), s, None, 600))(state)
+    jax_held = int(held.sum())
+    assert sumo >= 150, sumo
+    assert abs(jax_held - sumo) <= 0.25 * sumo, (jax_held, sumo)

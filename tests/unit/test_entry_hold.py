@@ -1,7 +1,9 @@
-"""The hold at entries (`jaxround.lanes.entry_hold`, off in the step by
-default): with ``hold_entries="occupied"`` a change onto an entry lane is
-held back exactly while a foe link's internal lane of that entry is
-occupied, as SUMO's lane ids say, and a held change is not made."""
+"""The hold at entries (`jaxround.lanes.entry_hold`): the step holds as
+SUMO 1.28 does by default (compared with SUMO in
+tests/sumo/test_lane_hold_probe.py); with the earlier reading
+``hold_entries="occupied"`` a change onto an entry lane is held back exactly
+while a foe link's internal lane of that entry is occupied, as SUMO's lane
+ids say, and a held change is not made."""
 
 from __future__ import annotations
 
@@ -83,8 +85,14 @@ def test_a_change_is_held_while_the_target_entrys_foe_lanes_are_occupied() -> No
     assert held > 50
 
 
-def test_the_step_does_not_hold_by_default() -> None:
-    env, _ = make("two_lane", max_vehicles=56)
-    assert env.lane_changer.hold_entries == "off"
+def test_the_step_holds_as_sumo_1_28_by_default() -> None:
+    env, params = make("two_lane", max_vehicles=56)
+    assert env.lane_changer.hold_entries == "parallel"
     with pytest.raises(ValueError, match="hold_entries='sometimes'"):
         LaneChanger(env.cfg, network_file(env.cfg), hold_entries="sometimes")
+    # the hold reads the approach the step registered: called alone, the
+    # changer says what it lacks
+    _, state = env.reset(jax.random.PRNGKey(0), params)
+    car = params.for_vehicles(state.is_av)
+    with pytest.raises(ValueError, match="own_entry"):
+        env.lane_changer(state, LaneChangeParams(), None, env.net, car)
