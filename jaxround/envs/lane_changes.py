@@ -8,7 +8,10 @@ is reset for the step (``MSLCM_LC2013::prepareStep``, at the end of
 ``executeMove``), then `jaxround.lanes.ring_batches` (one vehicle after
 another: cheaper on a CPU) or `jaxround.lanes.ring_rounds` (all at once in
 rounds, the same changes: cheaper on a GPU) moves vehicles between lane
-paths, which are the step's routes (`jaxround.lanes.ring_network`).
+paths, which are the step's routes (`jaxround.lanes.ring_network`). A
+change onto the other entry lane is held back as SUMO 1.28 holds it, while
+that lane's entry link would be closed to the vehicle's own approach
+(`jaxround.lanes.entry_hold`).
 
 Shapes: M vehicle slots, N scheduled vehicles.
 """
