@@ -248,6 +248,12 @@ class YieldLine(NamedTuple):
     impatience: jax.Array
 
 
+def impatience_after(car: CarFollowing, waiting_s: jax.Array) -> jax.Array:
+    """`MSBaseVehicle::getImpatience`: the vType's impatience grown by the
+    time waited, over time-to-impatience, within [0, 1]. (M,)."""
+    return jnp.clip(car.impatience + waiting_s / car.time_to_impatience, 0.0, 1.0)
+
+
 def yield_line(
     net: NetArrays,
     car: CarFollowing,
@@ -275,9 +281,7 @@ def yield_line(
         speed < car.decel * dt
     )
     before_line = veh.active & (to_line > 0)
-    impatience = jnp.clip(
-        car.impatience + veh.waiting_s / car.time_to_impatience, 0.0, 1.0
-    )
+    impatience = impatience_after(car, veh.waiting_s)
     return YieldLine(
         to_line, v_wait, v_link, to_link, leave_cap, can_brake, before_line, impatience
     )

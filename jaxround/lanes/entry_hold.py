@@ -60,6 +60,7 @@ import jax.numpy as jnp
 from jaxround.core.geometry import NetArrays
 from jaxround.core.junction import Approach, entry_approach, entry_blocked
 from jaxround.core.params import CarFollowing
+from jaxround.core.planning import impatience_after
 from jaxround.core.state import Registrations
 from jaxround.lanes.ring_changer import locate
 from jaxround.lanes.ring_neighbours import RingArrays
@@ -178,13 +179,12 @@ def held_by_parallel_link(
         t: the time at the start of the step just moved (s).
     """
     path, entry = targets(net, arrays, route, pos, active)
-    # getImpatience after the move (MSBaseVehicle: the waiting time counts)
-    impatience = jnp.clip(car.impatience + waiting_s / car.time_to_impatience, 0.0, 1.0)
+    impatience = impatience_after(car, waiting_s)  # the waiting time after the move
+    # MSLink::getLeaveTime over the parallel link's own internal lane
+    speed = 0.5 * (own_entry.arrival_speed + own_entry.leave_speed)
     held = []
     for side in (0, 1):
         to = jnp.maximum(path[:, side], 0)
-        # MSLink::getLeaveTime over the parallel link's own internal lane
-        speed = 0.5 * (own_entry.arrival_speed + own_entry.leave_speed)
         leave = own_entry.arrival + (
             net.entry_internal_length[entry[:, side]] + car.length
         ) / jnp.maximum(speed, 1e-3)
