@@ -63,6 +63,7 @@ class RingArrays(NamedTuple):
     bonus_junctions: jax.Array
     bonus_seen: jax.Array
     bonus_distance: jax.Array
+    bonus_unjammed: jax.Array
     bonus_outer: jax.Array
     bonus_inner: jax.Array
     bonus_outer_here: jax.Array
@@ -114,6 +115,7 @@ class RingArrays(NamedTuple):
             bonus_junctions=jnp.asarray(tables.bonus_junctions),
             bonus_seen=jnp.asarray(tables.bonus_seen, f),
             bonus_distance=jnp.asarray(tables.bonus_distance, f),
+            bonus_unjammed=jnp.asarray(tables.bonus_unjammed),
             bonus_outer=jnp.asarray(tables.bonus_outer),
             bonus_inner=jnp.asarray(tables.bonus_inner),
             bonus_outer_here=jnp.asarray(tables.bonus_outer_here),
@@ -242,9 +244,9 @@ def roundabout_bonus(
     most = jnp.maximum(outer, inner)
     extra = BONUS_PER_JUNCTION_M * junctions
     jam = jnp.maximum(0.0, (outer - inner + extra) / jnp.maximum(most + extra, 1e-9))
+    # 1.28: the jam factor only where the vehicle is off the roundabout or
+    # looks left, and an empty roundabout's bonus is not left out
+    jam = jnp.where(net.bonus_unjammed[at], 1.0, jam)
     value = net.bonus_distance[at] * jam * cooperative * 9.0
-    applies = (
-        (junctions >= 2) & (most > 0)
-        & (net.bonus_seen[at] - pos <= BONUS_LOOK_AHEAD_M)
-    )  # fmt: skip
+    applies = (junctions >= 2) & (net.bonus_seen[at] - pos <= BONUS_LOOK_AHEAD_M)
     return jnp.where(applies, value, 0.0)

@@ -18,7 +18,13 @@ of that lane's edge:
   roundabout, and the lanes whose occupation is summed for the outer (best)
   and the inner lane, those on the vehicle's own edge discounted by the
   share still ahead of it. Internal edges next to a ring edge count as
-  roundabout edges, as `NLEdgeControlBuilder::build` marks them.
+  roundabout edges, as `NLEdgeControlBuilder::build` marks them. SUMO
+  1.28's compiled function differs from the 2023 source in three ways
+  (docs/lc2013-map.md section 12, "The bonus as 1.28 computes it"): no bonus
+  to the left where the left lane's continuation is longer than the
+  vehicle's own; none of the traffic's jam factor to the right while the
+  vehicle is on the roundabout (`bonus_unjammed`); and no exception for an
+  empty roundabout.
 - For followers (`MSLane::getFollowersOnConsecutive`): each lane's
   upstream lanes, up to three links back, with the distance from their
   start to the lane's start and whether a minor link lies between.
@@ -68,6 +74,8 @@ class RingLanes:
         bonus_seen: float (P, K, Z, 2) lengths walked before the last lane of
             the first loop (the bonus is 0 if that minus the position > 300 m).
         bonus_distance: float (P, K, Z, 2) `distanceInRoundabout`.
+        bonus_unjammed: bool (P, K, Z, 2) the bonus is the distance's in full,
+            whatever the occupancies: looking right from a roundabout lane.
         bonus_outer, bonus_inner: int (P, K, Z, 2, C) lanes summed into
             `occupancyOuter` and `occupancyInner`.
         bonus_outer_here, bonus_inner_here: bool (P, K, Z, 2, C) those on the
@@ -88,6 +96,7 @@ class RingLanes:
     bonus_junctions: np.ndarray
     bonus_seen: np.ndarray
     bonus_distance: np.ndarray
+    bonus_unjammed: np.ndarray
     bonus_outer: np.ndarray
     bonus_inner: np.ndarray
     bonus_outer_here: np.ndarray
@@ -123,6 +132,7 @@ def ring_lanes(net_file: str | Path, driver: LookAheadDriver) -> RingLanes:
     bonus_junctions = np.zeros(bonus_shape, np.int32)
     bonus_seen = np.zeros(bonus_shape)
     bonus_distance = np.zeros(bonus_shape)
+    bonus_unjammed = np.zeros(bonus_shape, bool)
     bonus_outer = -np.ones((*bonus_shape, c_max), np.int32)
     bonus_inner = -np.ones((*bonus_shape, c_max), np.int32)
     bonus_outer_here = np.zeros((*bonus_shape, c_max), bool)
@@ -157,6 +167,8 @@ def ring_lanes(net_file: str | Path, driver: LookAheadDriver) -> RingLanes:
                     z_neigh = z + direction
                     if not 0 <= z_neigh < len(rows):
                         continue
+                    if side == 1 and len(conts[z_neigh]) > len(conts[z]):
+                        continue  # 1.28: the left lane goes on further
                     offset = rows[z].best_lane_offset
                     if offset == 0 and rows[z_neigh].best_lane_offset == 0:
                         offset = direction
@@ -174,6 +186,7 @@ def ring_lanes(net_file: str | Path, driver: LookAheadDriver) -> RingLanes:
                     at = (p, k, z, side)
                     bonus_junctions[at], bonus_seen[at] = junctions, seen
                     bonus_distance[at] = distance
+                    bonus_unjammed[at] = side == 0 and lane_roundabout[index[lane_id]]
                     for table, here, walked in (
                         (bonus_outer, bonus_outer_here, outer),
                         (bonus_inner, bonus_inner_here, inner),
@@ -195,6 +208,7 @@ def ring_lanes(net_file: str | Path, driver: LookAheadDriver) -> RingLanes:
         bonus_junctions=bonus_junctions,
         bonus_seen=bonus_seen,
         bonus_distance=bonus_distance,
+        bonus_unjammed=bonus_unjammed,
         bonus_outer=bonus_outer,
         bonus_inner=bonus_inner,
         bonus_outer_here=bonus_outer_here,
@@ -279,9 +293,8 @@ def _bonus_walk(
     prev_normal = prev_inner = None
     own_edge = ego_lane.getEdge()
     for i, lane in enumerate(best):
-        # the 2023 source skips the null entry here; 1.28 counts the vehicle's
-        # own (internal) lane (measured: docs/lc2013-map.md section 12)
-        lane = ego_lane if lane is None else lane
+        if lane is None:
+            continue  # the vehicle's own internal lane counts for nothing
         if on_roundabout(lane):
             entered = True
         elif entered:
@@ -293,8 +306,8 @@ def _bonus_walk(
         outer_walk.append((lane, lane.getEdge() is own_edge))
         if via is not None:
             outer_walk.append((via, False))
-        if i < len(inner):
-            inner_lane = inner[i] if inner[i] is not None else ego_lane
+        if i < len(inner) and inner[i] is not None:
+            inner_lane = inner[i]
             inner_walk.append((inner_lane, lane.getEdge() is own_edge))
             inner_via = _via(net, prev_inner, inner_lane)
             if inner_via is not None:
