@@ -44,16 +44,24 @@ def test_the_vehicles_that_hold_a_change_are_through_going_foes() -> None:
 
 def test_the_step_holds_about_as_often_as_sumo() -> None:
     """Held vehicle-steps (a wanted change to the left entry lane refused,
-    every `LCA_BLOCKED` bit set) in the first 300 s of schedule seed 0,
-    human drivers: SUMO 259, the JAX step 286 when written; without the
-    hold the step holds none."""
+    every `LCA_BLOCKED` bit set) in the first 900 s of schedule seeds 0, 1
+    and 2, human drivers: SUMO 2,367, the JAX step 2,511 (2026-11-28; 2,385
+    before the roundabout bonus followed 1.28's compiled code); without the
+    hold the step holds none. A single seed's first 300 s varies from 0.75
+    to 1.5 times SUMO's count with the same code."""
     cfg = load_config("two_lane")
-    sumo = len(held_steps(cfg, 300.0))
+    seeds, duration_s = (0, 1, 2), 900.0
+    sumo = sum(len(held_steps(cfg, duration_s, seed)) for seed in seeds)
     env, params = make(cfg)
-    _, state = env.reset_to_schedule(
-        env.schedule_from_numpy(make_schedule(cfg, 0)), params
-    )
+    starts = [
+        env.reset_to_schedule(
+            env.schedule_from_numpy(make_schedule(cfg, seed)), params
+        )[1]
+        for seed in seeds
+    ]
+    state = jax.tree.map(lambda *leaves: jnp.stack(leaves), *starts)
     action = jnp.zeros((env.max_vehicles, 2))
+    n_steps = int(round(duration_s / cfg.simulation.dt_s))
 
     def step(state):  # noqa: ANN001, ANN202
         state = env.step_env(jax.random.PRNGKey(0), state, action, params)[1]
@@ -61,7 +69,9 @@ def test_the_step_holds_about_as_often_as_sumo() -> None:
         held = ((wish & lca.INSUFFICIENT_SPEED) != 0) & ((wish & lca.LEFT) != 0)
         return state, jnp.sum(state.active & held)
 
-    _, held = jax.jit(lambda s: jax.lax.scan(lambda c, _: step(c), s, None, 600))(state)
-    jax_held = int(held.sum())
-    assert sumo >= 150, sumo
-    assert abs(jax_held - sumo) <= 0.25 * sumo, (jax_held, sumo)
+    def held_in(state):  # noqa: ANN001, ANN202
+        return jax.lax.scan(lambda c, _: step(c), state, None, n_steps)[1].sum()
+
+    jax_held = int(jax.jit(jax.vmap(held_in))(state).sum())
+    assert sumo >= 1500, sumo
+    assert abs(jax_held - sumo) <= 0.15 * sumo, (jax_held, sumo)
