@@ -20,7 +20,7 @@ of that lane's edge:
   share still ahead of it. Internal edges next to a ring edge count as
   roundabout edges, as `NLEdgeControlBuilder::build` marks them. SUMO
   1.28's compiled function differs from the 2023 source in three ways
-  (docs/lc2013-map.md section 12, "The bonus as 1.28 computes it"): no bonus
+  (docs/lc2013-map.md section 4, "As 1.28 computes it"): no bonus
   to the left where the left lane's continuation is longer than the
   vehicle's own; none of the traffic's jam factor to the right while the
   vehicle is on the roundabout (`bonus_unjammed`); and no exception for an

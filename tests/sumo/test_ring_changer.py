@@ -14,12 +14,15 @@ changes are compared with SUMO's: same vehicle, step and direction.
 
 from __future__ import annotations
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from jaxround.apps.ring_lane_record import record_sumo
-from jaxround.apps.ring_lane_replay import replay, tables_for
-from jaxround.scenario.config import ScenarioConfig
+from jaxround.apps.ring_lane_replay import arrays, replay, tables_for
+from jaxround.lanes.ring_neighbours import roundabout_bonus
+from jaxround.scenario.config import ScenarioConfig, load_config
 from jaxround.scenario.schedule import Schedule
 from tests.sumo.two_lane_networks import five_legs
 
@@ -61,3 +64,34 @@ def test_every_route_alone_changes_as_in_sumo() -> None:
     assert tally["sumo"] == 2 * passing
     assert tally.get("sumo cooperative") == tally.get("sumo strategic|urgent")
     assert tally["matched"] == tally["sumo"] == tally["jax"]
+
+
+def test_the_roundabout_bonus_as_sumo_1_28_computes_it() -> None:
+    """docs/lc2013-map.md section 4, "As 1.28 computes it": looking right from
+    a ring lane the bonus is the distance's in full, however jammed the
+    inner lane; elsewhere the jam factor takes it away; an empty roundabout
+    keeps its bonus."""
+    cfg = load_config("two_lane")
+    tables = tables_for(cfg)
+    net = arrays(cfg, tables)
+    looks = np.argwhere(tables.bonus_junctions >= 2)  # (n, 4): p, k, z, side
+    own = tables.edge_lanes[looks[:, 0], looks[:, 1], looks[:, 2]]
+    on_ring = tables.lane_roundabout[own]
+    right_on_ring = (looks[:, 3] == 0) & on_ring
+    assert right_on_ring.any() and (looks[:, 3] == 1).any()
+    unjammed = tables.bonus_unjammed[tuple(looks.T)]
+    assert np.array_equal(unjammed, right_on_ring)
+
+    def bonus(occupied: np.ndarray) -> np.ndarray:
+        one = lambda at, lane: roundabout_bonus(  # noqa: E731  (one look)
+            net, jnp.asarray(occupied), tuple(at), lane, 0.0, 1.0
+        )
+        return np.asarray(jax.vmap(one)(jnp.asarray(looks), jnp.asarray(own)))
+
+    full = tables.bonus_distance[tuple(looks.T)] * 9.0
+    empty = bonus(np.zeros(len(tables.paths.lane_ids)))
+    np.testing.assert_allclose(empty, full, rtol=1e-5)
+    inner_jammed = np.where(tables.paths.lane_index == 1, 200.0, 0.0)
+    jammed = bonus(inner_jammed)
+    np.testing.assert_allclose(jammed[right_on_ring], full[right_on_ring], rtol=1e-5)
+    assert np.all(jammed[~right_on_ring] < full[~right_on_ring])
