@@ -44,13 +44,14 @@ def test_the_vehicles_that_hold_a_change_are_through_going_foes() -> None:
 
 def test_the_step_holds_about_as_often_as_sumo() -> None:
     """Held vehicle-steps (a wanted change to the left entry lane refused,
-    every `LCA_BLOCKED` bit set) in the first 900 s of schedule seeds 0, 1
-    and 2, human drivers: SUMO 2,367, the JAX step 2,511 (2026-11-28; 2,385
-    before the roundabout bonus followed 1.28's compiled code); without the
-    hold the step holds none. A single seed's first 300 s varies from 0.75
-    to 1.5 times SUMO's count with the same code."""
+    every `LCA_BLOCKED` bit set) in the first 600 s of schedule seeds 0, 1
+    and 2, human drivers: SUMO 1,673, the JAX step 1,693 (2026-11-28; 1,595
+    before the roundabout bonus followed 1.28's compiled code; over 900 s
+    2,367 and 2,511); without the hold the step holds none. A single seed's
+    first 300 s varies from 0.75 to 1.5 times SUMO's count with the same
+    code."""
     cfg = load_config("two_lane")
-    seeds, duration_s = (0, 1, 2), 900.0
+    seeds, duration_s = (0, 1, 2), 600.0
     sumo = sum(len(held_steps(cfg, duration_s, seed)) for seed in seeds)
     env, params = make(cfg)
     starts = [
@@ -73,5 +74,5 @@ def test_the_step_holds_about_as_often_as_sumo() -> None:
         return jax.lax.scan(lambda c, _: step(c), state, None, n_steps)[1].sum()
 
     jax_held = int(jax.jit(jax.vmap(held_in))(state).sum())
-    assert sumo >= 1500, sumo
+    assert sumo >= 1000, sumo
     assert abs(jax_held - sumo) <= 0.15 * sumo, (jax_held, sumo)
