@@ -11,7 +11,7 @@ ends a wanted change that nothing blocked with two tests:
   ahead on the target lane within the vehicle's braking distance (at
   headway 0; at least the edge's zipper distance, 0 without zipper links)
   tested with `MSLink::hasApproachingFoe` at the times of the vehicle's own
-  drive item. Not ported (how often it holds was not measured).
+  drive item. Not ported (tried once: docs/lc2013-map.md section 12).
 - new in 1.28 (apparently SUMO issue 17411, "a neighboring lane has additional foe
   links to consider"), on an edge whose lanes' links differ in their foes
   (`postloadInitLC`): for a vehicle on a normal lane whose link to its best
@@ -28,9 +28,10 @@ ends a wanted change that nothing blocked with two tests:
 (`LaneChanger(hold_entries="parallel")`): the target lane's entry tested as
 `jaxround.core.junction.entry_blocked` tests a vehicle's own entry, with
 the approach the step registered and tested for it (`jaxround.core.dynamics.
-Planned.own_entry`). On two_lane.yaml, schedule seed 0, human drivers, it
-holds 839 vehicle-steps in the first 900 s where SUMO holds 848, and 286
-in the first 300 s against SUMO's 259 (`tests/sumo/test_entry_hold_sumo.py`).
+Planned.own_entry`). On two_lane.yaml, human drivers, it holds 1,693
+vehicle-steps in the first 600 s of schedule seeds 0-2 where SUMO holds
+1,673 (`tests/sumo/test_lane_hold_probe.py`; 839 against 848 in the first
+900 s of seed 0 before the roundabout bonus followed 1.28).
 
 Two earlier readings, measured in the step before 1.28's code was read and
 kept for comparison (``hold_entries="occupied"`` and ``"approaching"``):
