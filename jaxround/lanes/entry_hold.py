@@ -181,14 +181,16 @@ def held_by_parallel_link(
     """
     path, entry = targets(net, arrays, route, pos, active)
     impatience = impatience_after(car, waiting_s)  # the waiting time after the move
+    # roads have one or two lanes (`jaxround.scenario.roads.LANE_COUNTS`), so
+    # a vehicle has a lane beside it on one side at most: one test per vehicle
+    side = (path[:, 1] >= 0).astype(jnp.int32)
+    to = jnp.maximum(jnp.take_along_axis(path, side[:, None], axis=1)[:, 0], 0)
+    target_entry = jnp.take_along_axis(entry, side[:, None], axis=1)[:, 0]
     # MSLink::getLeaveTime over the parallel link's own internal lane
     speed = 0.5 * (own_entry.arrival_speed + own_entry.leave_speed)
-    held = []
-    for side in (0, 1):
-        to = jnp.maximum(path[:, side], 0)
-        leave = own_entry.arrival + (
-            net.entry_internal_length[entry[:, side]] + car.length
-        ) / jnp.maximum(speed, 1e-3)
-        ego = own_entry._replace(leave=leave)
-        held.append(entry_blocked(net, car, to, ego, regs, impatience, t + dt, dt))
-    return (path >= 0) & jnp.stack(held, axis=1)
+    leave = own_entry.arrival + (
+        net.entry_internal_length[target_entry] + car.length
+    ) / jnp.maximum(speed, 1e-3)
+    ego = own_entry._replace(leave=leave)
+    held = entry_blocked(net, car, to, ego, regs, impatience, t + dt, dt)
+    return (path >= 0) & held[:, None]
