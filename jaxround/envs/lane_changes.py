@@ -6,8 +6,10 @@ SUMO's ``MSNet::simulationStep`` moves every vehicle
 phase for a roundabout with two-lane roads: every vehicle's LC2013 memory
 is reset for the step (``MSLCM_LC2013::prepareStep``, at the end of
 ``executeMove``), then `jaxround.lanes.ring_batches` (one vehicle after
-another: cheaper on a CPU) or `jaxround.lanes.ring_rounds` (all at once in
-rounds, the same changes: cheaper on a GPU) moves vehicles between lane
+another: the default, cheaper on a CPU and on a GPU from a few thousand
+roundabouts a batch) or `jaxround.lanes.ring_rounds` (all at once in
+rounds, the same changes: cheaper on a GPU up to about 1,000 roundabouts
+a batch; docs/benchmarks.md) moves vehicles between lane
 paths, which are the step's routes (`jaxround.lanes.ring_network`). A
 change onto the other entry lane is held back as SUMO 1.28 holds it, while
 that lane's entry link would be closed to the vehicle's own approach
@@ -114,8 +116,10 @@ class LaneChanger:
     Args:
         cfg: the scenario.
         net_file: its `.net.xml` (the paths' numbering is `lane_paths`').
-        in_rounds: `ring_rounds` instead of the turns one by one; None:
-            rounds on an accelerator, turns on a CPU.
+        in_rounds: `ring_rounds` instead of the turns one by one (the same
+            changes; on an H200 twice as fast at batch 1,024, three times
+            slower at 65,536: docs/benchmarks.md). May be set on the
+            instance before the step is traced.
         hold_entries: how a change onto the other entry lane is held back
             (`jaxround.lanes.entry_hold`): ``"parallel"`` (the default) as
             SUMO 1.28 does, while that lane's entry link would be closed to
@@ -128,7 +132,7 @@ class LaneChanger:
         self,
         cfg: ScenarioConfig,
         net_file: str | Path,
-        in_rounds: bool | None = None,
+        in_rounds: bool = False,
         hold_entries: str = "parallel",
     ) -> None:
         if hold_entries not in HOLD_MODES:
@@ -141,8 +145,6 @@ class LaneChanger:
         self.hv = driver_numbers(cfg.drivers.hv)
         self.av = driver_numbers(cfg.drivers.av)
         self.dt = cfg.simulation.dt_s
-        if in_rounds is None:
-            in_rounds = jax.default_backend() != "cpu"
         self.in_rounds = in_rounds
         self.hold_entries = hold_entries
 
