@@ -55,12 +55,15 @@ def run_jax(
     max_vehicles: int | str | None = None,
     driver: DriverSpec | None = None,
     cap_s: float | None = None,
+    *,
+    crossing_leaders: bool = False,
 ) -> list[dict[str, Any]]:
     """Run the schedules of `seeds` in JAX, all seeds in one vmapped batch,
     each until its vehicles have left or `cap_s` (default: the episode), with
     `max_vehicles` slots (None: the config's, else what the traffic needs),
     redone with more slots while any run's slots overflow
-    (`jaxround.envs.slots.redo_on_overflow`).
+    (`jaxround.envs.slots.redo_on_overflow`); `crossing_leaders` as
+    `jaxround.envs.roundabout.make` takes it.
 
     Returns:
         One ``{"records": VehicleRecords, "overflow": int, "end_s": float,
@@ -75,7 +78,9 @@ def run_jax(
 
     def run_with(slots: int | str | None) -> tuple[RoundaboutEnv, Any]:
         """Every seed with `slots` vehicle slots, side by side."""
-        env, params = make(driven, max_vehicles=slots)
+        env, params = make(
+            driven, max_vehicles=slots, crossing_leaders=crossing_leaders
+        )
         policy = jax_driver(env, params, driver)
         max_steps = None if cap_s is None else int(math.ceil(cap_s / env.dt))
         batch = jax.tree.map(
@@ -88,7 +93,9 @@ def run_jax(
 
         return env, jax.jit(jax.vmap(one))(batch, keys)
 
-    first = make(driven, max_vehicles=max_vehicles)[0]
+    first = make(driven, max_vehicles=max_vehicles, crossing_leaders=crossing_leaders)[
+        0
+    ]
     (env, states), tried = redo_on_overflow(
         run_with, lambda run: int(np.sum(run[1].stats.overflow)),
         max_vehicles=first.max_vehicles, road=road_capacity(first.network, driven),
@@ -144,6 +151,7 @@ def parity_report(
     controller: str | None = None,
     max_vehicles: int | str | None = None,
     drain_s: float | None = None,
+    crossing_leaders: bool = False,
 ) -> dict[str, Any]:
     """The `jaxround parity --json` object for the schedules of `seeds`.
 
@@ -156,6 +164,8 @@ def parity_report(
             slot overflow (vehicle-steps insertions waited for a slot: 0).
         drain_s: seconds after the demand horizon both simulators may go on
             (the cap); None: `DRAIN_S`.
+        crossing_leaders: JAX's link leaders on crossing internal lanes
+            (`jaxround.envs.roundabout.make`; off by default).
 
     Returns:
         The means of both simulators ("jax", "sumo": `class_metrics` over the
@@ -182,8 +192,9 @@ def parity_report(
         controller=sumo_driver(driver), drain_s=drain_s,
     )  # fmt: skip
     jax_runs = run_jax(
-        cfg, seeds, penetration, max_vehicles, driver=driver, cap_s=cap_s
-    )
+        cfg, seeds, penetration, max_vehicles, driver=driver, cap_s=cap_s,
+        crossing_leaders=crossing_leaders,
+    )  # fmt: skip
     horizon = cfg.demand.duration_s
     sumo_records = [r.records for r in sumo_runs]
     jax_records = [r["records"] for r in jax_runs]

@@ -11,6 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxround.core.crossing_tables import CrossingArrays
 from jaxround.core.network import CompiledNetwork
 from jaxround.core.reductions import first_min
 
@@ -56,6 +57,7 @@ class NetArrays:
     all_arrive: bool  # every route's does (static: one-lane roundabouts)
     entry_crossing: jax.Array  # (G,) the entry whose through link g's crosses
     has_crossings: bool  # some entry's does (static: two-lane entries)
+    crossing: CrossingArrays | None  # internal lanes that cross; None: none
 
     @classmethod
     def from_network(cls, net: CompiledNetwork) -> NetArrays:
@@ -142,6 +144,9 @@ class NetArrays:
             ),
             has_crossings=net.entry_crossing is not None
             and bool(np.any(net.entry_crossing >= 0)),
+            crossing=None
+            if net.crossings is None
+            else CrossingArrays.build(net.crossings, net.route_lanes),
         )
 
 

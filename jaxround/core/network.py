@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from jaxround.core.crossing_tables import CrossingConflicts
 from jaxround.scenario.edges import ring_edge
 
 
@@ -70,6 +71,9 @@ class CompiledNetwork:
         route_arrives: bool (R,) the route ends where vehicles leave; None:
             all do. A lane path that ends on the ring does not: a vehicle
             must change lanes before its end.
+        crossings: the internal lanes that cross inside a junction, as SUMO
+            measures the conflict (`jaxround.core.crossing_tables`); None:
+            none cross.
     """
 
     n_legs: int
@@ -97,6 +101,7 @@ class CompiledNetwork:
     route_entry: np.ndarray | None = None
     route_arrives: np.ndarray | None = None
     entry_crossing: np.ndarray | None = None
+    crossings: CrossingConflicts | None = None
 
     @property
     def n_routes(self) -> int:

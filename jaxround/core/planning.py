@@ -33,6 +33,7 @@ import jax.numpy as jnp
 
 from jaxround.core import command as traci
 from jaxround.core import idm
+from jaxround.core.crossing_leaders import crossing_leader_speed
 from jaxround.core.geometry import NetArrays, leaders, locate
 from jaxround.core.insertion import STOP_OFFSET
 from jaxround.core.junction import brake_gap
@@ -276,6 +277,14 @@ def yield_line(
     v_link, to_link = link_leader_speed(
         net, car, veh, start.v_lane, to_line > 0, v_wait, step=step, tables=tables
     )
+    if net.crossing is not None:  # the link leaders on crossing internal lanes
+        v_link = jnp.minimum(
+            v_link,
+            crossing_leader_speed(
+                net, car, veh.route, veh.pos, speed, veh.active, start.v_lane,
+                dt=dt, n_substeps=step.n_substeps, action_step=step.action_step,
+            ),
+        )  # fmt: skip
     leave_cap = jnp.where(to_line > 0, v_link, jnp.inf)
     can_brake = (to_line > brake_gap(speed, car.decel, 0.0, dt)) | (
         speed < car.decel * dt

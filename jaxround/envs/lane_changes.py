@@ -20,6 +20,7 @@ Shapes: M vehicle slots, N scheduled vehicles.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import jax
@@ -100,13 +101,16 @@ def changer_arrays(cfg: ScenarioConfig, tables: RingLanes) -> ring_changer.RingA
 
 
 def compiled_network(
-    cfg: ScenarioConfig, net_file: str | Path
+    cfg: ScenarioConfig, net_file: str | Path, crossing_leaders: bool = False
 ) -> tuple[CompiledNetwork, LaneChanger | None]:
     """The step's network of a scenario, and its lane changer where a road has
-    two lanes (routes are then lane paths: `jaxround.lanes.ring_network`)."""
+    two lanes (routes are then lane paths: `jaxround.lanes.ring_network`);
+    the crossings' link leaders only with `crossing_leaders`."""
     if cfg.network.single_lane:
         return compile_network(net_file, cfg.n_legs), None
     network, _ = compile_lane_network(net_file, cfg.n_legs)
+    if not crossing_leaders:
+        network = dataclasses.replace(network, crossings=None)
     return network, LaneChanger(cfg, net_file)
 
 

@@ -375,6 +375,8 @@ def make(
     max_vehicles: int | str | None = None,
     episode_s: float | None = None,
     workdir: str | Path | None = None,
+    *,
+    crossing_leaders: bool = False,
 ) -> tuple[RoundaboutEnv, EnvParams]:
     """Build the environment of a scenario: its network is compiled by netconvert.
 
@@ -385,6 +387,7 @@ def make(
             road holds.
         episode_s: episode length; default demand horizon + 300 s.
         workdir: where to write the SUMO network; a cache folder if None.
+        crossing_leaders: link leaders where internal lanes cross (docs/two_lane.md).
 
     Returns:
         (env, default params).
@@ -392,6 +395,6 @@ def make(
     cfg = scenario if isinstance(scenario, ScenarioConfig) else load_config(scenario)
     check_jax_lanes(cfg)  # before netconvert runs
     net_path = network_file(cfg, workdir)
-    network, changer = compiled_network(cfg, net_path)
+    network, changer = compiled_network(cfg, net_path, crossing_leaders)
     env = RoundaboutEnv(cfg, network, max_vehicles, episode_s, changer)
     return env, env.default_params

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 import sumolib
 
+from jaxround.core.crossing_tables import crossing_conflicts
 from jaxround.core.network import CompiledNetwork, NetworkError
 from jaxround.lanes.paths import LanePaths, lane_paths
 from jaxround.scenario.edges import in_edge, ring_edge
@@ -82,6 +83,7 @@ def compile_lane_network(
         [int(np.nonzero(entry_lane == lane)[0][0]) for lane in first_lane], np.int32
     )
     ring_through = np.array([e[2] for e in entries], np.int32)
+    crossing = _crossings(paths, entries)
     n_paths, n_entries = paths.n_paths, len(entries)
     conflict_offset = np.full((n_paths, n_entries), np.nan)
     for p in range(n_paths):
@@ -113,7 +115,17 @@ def compile_lane_network(
         entry_visibility=np.array([e[3] for e in entries]),
         route_entry=route_entry,
         route_arrives=paths.path_complete.copy(),
-        entry_crossing=_crossings(paths, entries),
+        entry_crossing=crossing,
+        crossings=crossing_conflicts(
+            [
+                (e[1], entries[c][2])
+                for e, c in zip(entries, crossing, strict=True)
+                if c >= 0
+            ],
+            shapes,
+            lane_length,
+            np.array([ln.getWidth() for ln in lanes]),
+        ),
     ), paths
 
 

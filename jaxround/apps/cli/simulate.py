@@ -93,7 +93,7 @@ def cmd_parity(args: argparse.Namespace) -> None:
             cfg, seeds_of(cfg, args.seeds), workers=args.workers,
             show_progress=not args.no_progress, penetration=args.penetration,
             controller=args.controller, max_vehicles=args.max_vehicles,
-            drain_s=args.drain_s,
+            drain_s=args.drain_s, crossing_leaders=args.crossing_leaders,
         )  # fmt: skip
     except ValueError as err:
         raise UsageError(str(err)) from None
@@ -267,6 +267,11 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     )  # fmt: skip
     slots_option(p)
     drain_option(p)
+    p.add_argument(
+        "--crossing-leaders", action="store_true",
+        help="two-lane roads: JAX's link leaders on the internal lanes that "
+        "cross at a left entry, as SUMO's (off by default; docs/two_lane.md)",
+    )  # fmt: skip
     p.add_argument(
         "--saturation", action="store_true",
         help="also print per-leg entry rates and crossing-time quantiles over "

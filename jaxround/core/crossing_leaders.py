@@ -1,0 +1,126 @@
+"""Link leaders on crossing internal lanes (SUMO's ``MSLink::getLeaderInfo``
+for a foe lane that crosses, ``MSVehicle::checkLinkLeader``,
+``MSVehicle::isLeader`` and ``MSVehicle::adaptToJunctionLeader``).
+
+A vehicle whose route takes an internal lane that crosses another (the left
+entry lane's link across the outer ring lane's, `jaxround.core.crossing_tables`)
+is led by every vehicle touching the foe lane that has not passed the
+conflict area, as SUMO 1.28 does:
+
+- skipped once the vehicle is past the area (``distToCrossing + conflictSize
+  < 0``), and a foe past it (``leaderBackDist + foeConflictSize < 0``);
+  after the vehicle entered the area, only foes in the way (entered the area,
+  not past it) count;
+- before the junction every such foe leads; on the junction the lane whose
+  link yields (the entry's) yields to all, the ring's only to foes in the way;
+- the gap is ``distToCrossing - minGap - leaderBackDist - foeConflictSize``:
+  the IDM follows a foe at a non-negative gap, a negative one stops the
+  vehicle at the start of its lane; then, as the foe moves off the crossing,
+  the vehicle may still reach the conflict area as the foe leaves it (the
+  speed ``v2`` of ``adaptToJunctionLeader``, at most the speed that stops
+  minGap before the area); before the junction the vehicle may always drive
+  up to its link (``lastLink->myVLinkWait``).
+
+Not ported: the sagitta of curved links (``myRadius``: 0 here), foes that
+will not pass (every foe on an internal lane does here), the bicycle and
+pedestrian cases.
+
+Shapes: M vehicle slots.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from jaxround.core import idm
+from jaxround.core.geometry import NetArrays, locate
+from jaxround.core.insertion import STOP_OFFSET
+from jaxround.core.params import CarFollowing
+
+#: SUMO's ``POSITION_EPS`` (m).
+POSITION_EPS = 0.1
+#: SUMO's ``SUMO_const_haltingSpeed`` (m/s).
+HALTING_SPEED = 0.1
+
+
+def crossing_leader_speed(
+    net: NetArrays,
+    car: CarFollowing,
+    route: jax.Array,
+    pos: jax.Array,
+    speed: jax.Array,
+    active: jax.Array,
+    v_lane: jax.Array,
+    *,
+    dt: float,
+    n_substeps: int,
+    action_step: float,
+) -> jax.Array:
+    """The speed the link leaders on each vehicle's next crossing allow,
+    float (M,) (inf without one). route, pos, speed, active: (M,) each;
+    v_lane (M,) the desired speed."""
+    cx = net.crossing
+    m = pos.shape[0]
+    k, _, _ = locate(net, route, pos)
+    row = jnp.take_along_axis(cx.next_row[route], k[:, None], axis=1)[:, 0]
+    kc = jnp.take_along_axis(cx.next_index[route], k[:, None], axis=1)[:, 0]
+    has = (row >= 0) & active
+    row = jnp.maximum(row, 0)
+    lane = cx.lane[row]
+    start = jnp.take_along_axis(net.route_lane_start[route], kc[:, None], axis=1)[:, 0]
+    to_link = start - pos  # to the start of the crossing lane (its entry link)
+    to_cross = to_link + net.lane_length[lane] - cx.behind[row]  # distToCrossing
+    has = has & (to_cross + cx.size[row] >= 0)
+    on_junction = to_link <= 0
+
+    # every vehicle j touching the foe lane of i's crossing, (M_i, M_j)
+    foe = cx.foe[row]
+    length = jnp.broadcast_to(car.length, (m,))
+    off = net.lane_offset[route[None, :], foe[:, None]]  # where it starts for j
+    back_on = pos[None, :] - length[None, :] - off
+    foe_len = net.lane_length[foe][:, None]
+    others = jnp.arange(m)[None, :] != jnp.arange(m)[:, None]
+    touches = (pos[None, :] - off > 0) & (back_on < foe_len) & ~jnp.isnan(off)
+    touches = touches & active[None, :] & others
+    back_dist = foe_len - cx.foe_behind[row][:, None] - back_on  # leaderBackDist
+    foe_size = cx.foe_size[row][:, None]
+    past = back_dist + foe_size < 0
+    in_way = ~past & (to_cross[:, None] > 0) & (back_dist < length[None, :])
+    entered_area = to_cross[:, None] < -POSITION_EPS
+    leads = touches & ~past & (in_way | ~entered_area)
+    leads = leads & (~on_junction[:, None] | cx.minor[row][:, None] | in_way)
+
+    min_gap = jnp.broadcast_to(car.min_gap, (m,))[:, None]
+    gap = to_cross[:, None] - min_gap - back_dist - foe_size
+    cols = car.columns()
+    stepping = {"vtype": cols.idm, "dt": dt, "n_substeps": n_substeps}
+    v = speed[:, None]
+    v_follow = idm.idm_follow_speed(
+        v, speed[None, :], gap + min_gap, v_lane[:, None], **stepping
+    )
+    v_stop_link = idm.idm_stop_speed(
+        speed, to_link - STOP_OFFSET, v_lane, vtype=car.idm, dt=dt,
+        n_substeps=n_substeps, action_step=action_step,
+    )  # fmt: skip
+    v_stop_link = jnp.where(to_link > 0, v_stop_link, 0.0)
+    v_safe = jnp.where(gap >= 0, v_follow, v_stop_link[:, None])
+    # the foe may leave the area before the vehicle reaches it
+    v_stop_area = idm.idm_stop_speed(
+        speed, to_cross - min_gap[:, 0], v_lane, vtype=car.idm, dt=dt,
+        n_substeps=n_substeps, action_step=action_step,
+    )[:, None]  # fmt: skip
+    leader_to_cross = to_cross[:, None] - gap
+    past_cp_s = leader_to_cross / jnp.maximum(speed[None, :], HALTING_SPEED)
+    v_final = jnp.maximum(v, 2 * (to_cross[:, None] - min_gap) / past_cp_s - v)
+    v_reach = v + (v_final - v) / past_cp_s * dt
+    v_safe = jnp.where(
+        to_cross[:, None] >= 0,
+        jnp.maximum(v_safe, jnp.minimum(v_reach, v_stop_area)),
+        v_safe,
+    )
+    v_cross = jnp.min(jnp.where(leads, v_safe, jnp.inf), axis=1)
+    led = has & jnp.any(leads, axis=1)
+    # before the junction the vehicle may still drive up to its link
+    v_cross = jnp.where(~on_junction, jnp.maximum(v_cross, v_stop_link), v_cross)
+    return jnp.where(led, v_cross, jnp.inf)
