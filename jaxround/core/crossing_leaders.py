@@ -78,10 +78,12 @@ def crossing_leader_speed(
     foe = cx.foe[row]
     length = jnp.broadcast_to(car.length, (m,))
     off = net.lane_offset[route[None, :], foe[:, None]]  # where it starts for j
+    on_route = ~jnp.isnan(off)
+    off = jnp.where(on_route, off, 0.0)  # no nan in the step (nor its gradient)
     back_on = pos[None, :] - length[None, :] - off
     foe_len = net.lane_length[foe][:, None]
     others = jnp.arange(m)[None, :] != jnp.arange(m)[:, None]
-    touches = (pos[None, :] - off > 0) & (back_on < foe_len) & ~jnp.isnan(off)
+    touches = (pos[None, :] - off > 0) & (back_on < foe_len) & on_route
     touches = touches & active[None, :] & others
     back_dist = foe_len - cx.foe_behind[row][:, None] - back_on  # leaderBackDist
     foe_size = cx.foe_size[row][:, None]
@@ -110,7 +112,7 @@ def crossing_leader_speed(
         speed, to_cross - min_gap[:, 0], v_lane, vtype=car.idm, dt=dt,
         n_substeps=n_substeps, action_step=action_step,
     )[:, None]  # fmt: skip
-    leader_to_cross = to_cross[:, None] - gap
+    leader_to_cross = jnp.maximum(to_cross[:, None] - gap, POSITION_EPS)  # > 0 if led
     past_cp_s = leader_to_cross / jnp.maximum(speed[None, :], HALTING_SPEED)
     v_final = jnp.maximum(v, 2 * (to_cross[:, None] - min_gap) / past_cp_s - v)
     v_reach = v + (v_final - v) / past_cp_s * dt
