@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxround.core import idm
-from jaxround.core.geometry import NetArrays, locate
+from jaxround.core.geometry import NetArrays
 from jaxround.core.insertion import STOP_OFFSET
 from jaxround.core.params import CarFollowing
 
@@ -48,6 +48,7 @@ def crossing_leader_speed(
     net: NetArrays,
     car: CarFollowing,
     route: jax.Array,
+    lane_index: jax.Array,
     pos: jax.Array,
     speed: jax.Array,
     active: jax.Array,
@@ -58,13 +59,14 @@ def crossing_leader_speed(
     action_step: float,
 ) -> jax.Array:
     """The speed the link leaders on each vehicle's next crossing allow,
-    float (M,) (inf without one). route, pos, speed, active: (M,) each;
-    v_lane (M,) the desired speed."""
+    float (M,) (inf without one). route, lane_index (the route lane of each
+    front, `planning.StartSpeeds`), pos, speed, active: (M,) each; v_lane
+    (M,) the desired speed."""
     cx = net.crossing
     m = pos.shape[0]
-    k, _, _ = locate(net, route, pos)
-    row = jnp.take_along_axis(cx.next_row[route], k[:, None], axis=1)[:, 0]
-    kc = jnp.take_along_axis(cx.next_index[route], k[:, None], axis=1)[:, 0]
+    k = lane_index[:, None]
+    row = jnp.take_along_axis(cx.next_row[route], k, axis=1)[:, 0]
+    kc = jnp.take_along_axis(cx.next_index[route], k, axis=1)[:, 0]
     has = (row >= 0) & active
     row = jnp.maximum(row, 0)
     lane = cx.lane[row]

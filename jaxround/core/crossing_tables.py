@@ -51,6 +51,11 @@ class CrossingConflicts:
     minor: np.ndarray
 
 
+def _arc_lengths(shape: np.ndarray) -> np.ndarray:
+    """Distance along polyline `shape` (n, 2) to each of its points, (n,)."""
+    return np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(shape, axis=0).T))])
+
+
 def _intersections(
     a: np.ndarray, b: np.ndarray
 ) -> list[tuple[float, float, float, float]]:
@@ -58,8 +63,7 @@ def _intersections(
     a's heading there, b's heading there), headings in degrees. SUMO's
     ``PositionVector::intersectsAtLengths2D`` (both ways)."""
     hits = []
-    len_a = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(a, axis=0).T))])
-    len_b = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(b, axis=0).T))])
+    len_a, len_b = _arc_lengths(a), _arc_lengths(b)
     for i in range(len(a) - 1):
         p, r = a[i], a[i + 1] - a[i]
         for j in range(len(b) - 1):
@@ -72,8 +76,8 @@ def _intersections(
             if 0.0 <= t <= 1.0 and 0.0 <= u <= 1.0:
                 hits.append(
                     (
-                        len_a[i] + t * np.hypot(*r),
-                        len_b[j] + u * np.hypot(*s),
+                        len_a[i] + t * (len_a[i + 1] - len_a[i]),
+                        len_b[j] + u * (len_b[j + 1] - len_b[j]),
                         float(np.degrees(np.arctan2(r[1], r[0]))),
                         float(np.degrees(np.arctan2(s[1], s[0]))),
                     )
@@ -90,7 +94,7 @@ def conflict_on(
     sine = max(abs(np.sin(np.radians(angle_deg))), MIN_SINE)
     size = min(foe_width * (2.0 / sine - 1.0), length)
     geometric = max(0.0, at - size / 2)
-    shape_length = float(np.sum(np.hypot(*np.diff(shape, axis=0).T)))
+    shape_length = float(_arc_lengths(shape)[-1])
     lane_pos = geometric * length / shape_length if shape_length > 0 else geometric
     return length - lane_pos, size
 

@@ -281,7 +281,8 @@ def yield_line(
         v_link = jnp.minimum(
             v_link,
             crossing_leader_speed(
-                net, car, veh.route, veh.pos, speed, veh.active, start.v_lane,
+                net, car, veh.route, start.lane_index, veh.pos, speed, veh.active,
+                start.v_lane,
                 dt=dt, n_substeps=step.n_substeps, action_step=step.action_step,
             ),
         )  # fmt: skip
