@@ -11,8 +11,15 @@ conflict area, as SUMO 1.28 does:
   < 0``), and a foe past it (``leaderBackDist + foeConflictSize < 0``);
   after the vehicle entered the area, only foes in the way (entered the area,
   not past it) count;
-- before the junction every such foe leads; on the junction the lane whose
-  link yields (the entry's) yields to all, the ring's only to foes in the way;
+- before the junction every such foe leads (``MSVehicle::isLeader``); on
+  the junction a foe leads if it is only partly on it (its front beyond the
+  foe lane) or if it came first: the yielding link's vehicle (the entry's)
+  compares the time it entered the conflict area with the time the foe
+  entered the junction, the ring's vehicle its own junction entry with the
+  foe's conflict entry (`conflict_clock`: the same instant where no
+  internal junction splits a link, as in every scenario here); at the same
+  time the faster leads, then the smaller id (``v00012`` before
+  ``v00013``: the schedule's order);
 - the gap is ``distToCrossing - minGap - leaderBackDist - foeConflictSize``:
   the IDM follows a foe at a non-negative gap, a negative one stops the
   vehicle at the start of its lane; then, as the foe moves off the crossing,
@@ -23,7 +30,9 @@ conflict area, as SUMO 1.28 does:
 
 Not ported: the sagitta of curved links (``myRadius``: 0 here), foes that
 will not pass (every foe on an internal lane does here), the bicycle and
-pedestrian cases.
+pedestrian cases, a vehicle giving up its entry time when it withdraws its
+request on the junction (``MSVehicle::processLinkApproaches``: only behind a
+foe waiting over 5 s, ``JUNCTION_BLOCKAGE_TIME``).
 
 Shapes: M vehicle slots.
 """
@@ -34,7 +43,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxround.core import idm
-from jaxround.core.geometry import NetArrays
+from jaxround.core.geometry import NetArrays, locate
 from jaxround.core.insertion import STOP_OFFSET
 from jaxround.core.params import CarFollowing
 
@@ -42,6 +51,28 @@ from jaxround.core.params import CarFollowing
 POSITION_EPS = 0.1
 #: SUMO's ``SUMO_const_haltingSpeed`` (m/s).
 HALTING_SPEED = 0.1
+
+
+def conflict_clock(
+    net: NetArrays,
+    route: jax.Array,
+    pos: jax.Array,
+    active: jax.Array,
+    clock: jax.Array,
+    t: jax.Array,
+) -> jax.Array:
+    """When each vehicle's front entered the internal lane that leaves its
+    junction, float (M,) (+inf while elsewhere): SUMO's
+    ``myJunctionConflictEntryTime``, set in ``MSVehicle::enterLaneAtMove``
+    at a link that enters the conflict area (``MSLink::isConflictEntryLink``),
+    cleared at the exit link. Called after the move of the step that began
+    at `t`, with the previous step's `clock`; route, pos, active (M,)."""
+    k, lane, _ = locate(net, route, pos)
+    k_next = jnp.minimum(k + 1, net.route_lanes.shape[1] - 1)
+    lane_next = jnp.take_along_axis(net.route_lanes[route], k_next[:, None], axis=1)
+    last_internal = net.lane_internal[lane] & ~net.lane_internal[lane_next[:, 0]]
+    inside = active & last_internal
+    return jnp.where(inside, jnp.minimum(clock, t), jnp.inf)
 
 
 def crossing_leader_speed(
@@ -53,6 +84,8 @@ def crossing_leader_speed(
     speed: jax.Array,
     active: jax.Array,
     v_lane: jax.Array,
+    clock: jax.Array,
+    vid: jax.Array,
     *,
     dt: float,
     n_substeps: int,
@@ -93,7 +126,16 @@ def crossing_leader_speed(
     in_way = ~past & (to_cross[:, None] > 0) & (back_dist < length[None, :])
     entered_area = to_cross[:, None] < -POSITION_EPS
     leads = touches & ~past & (in_way | ~entered_area)
-    leads = leads & (~on_junction[:, None] | cx.minor[row][:, None] | in_way)
+    # isLeader: who came first (a vehicle with its front on the foe lane is
+    # on the junction; one touching it from beyond only partly)
+    ego_time, foe_time = clock[:, None], clock[None, :]
+    foe_front_on = pos[None, :] - off <= foe_len
+    tie = (ego_time == foe_time) & (
+        (speed[:, None] < speed[None, :])
+        | ((speed[:, None] == speed[None, :]) & (vid[:, None] < vid[None, :]))
+    )
+    first = ~foe_front_on | (ego_time > foe_time) | tie
+    leads = leads & (~on_junction[:, None] | first | in_way)
 
     min_gap = jnp.broadcast_to(car.min_gap, (m,))[:, None]
     gap = to_cross[:, None] - min_gap - back_dist - foe_size

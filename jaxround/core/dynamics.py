@@ -90,6 +90,7 @@ def planned_speed(
     action_step: float,
     command: jax.Array | None = None,
     patch: SpeedPatch | None = None,
+    junction_order: tuple[jax.Array, jax.Array] | None = None,
 ) -> Planned:
     """Every vehicle's speed at the end of the step, as SUMO's IDM plans it:
     the phases of `jaxround.core.planning` and `jaxround.core.right_of_way`
@@ -107,12 +108,19 @@ def planned_speed(
             none), applied where SUMO applies it (`jaxround.core.command`).
         patch: the lane-change model's ``patchSpeed`` on finalizeSpeed's
             bounds (two-lane roads: `jaxround.envs.lane_changes`); None: none.
+        junction_order: where internal lanes cross (``net.crossing``), who
+            came first: (clock, vid), float and int (M,), the time each
+            front entered its conflict area (`crossing_leaders.conflict_clock`)
+            and each slot's schedule index.
 
     Returns:
         `Planned`.
     """
     car = params
-    veh = Vehicles(route, pos, speed, speed_factor, active, waiting_s)
+    if net.crossing is not None and junction_order is None:
+        raise ValueError("net.crossing needs junction_order=(clock, vid)")
+    clock, vid = (None, None) if junction_order is None else junction_order
+    veh = Vehicles(route, pos, speed, speed_factor, active, waiting_s, clock, vid)
     step = Stepping(dt, n_substeps, action_step)
     # each phase in its own named scope: `jaxround bench --profile` reads
     # them back from the compiled program (`jaxround.apps.bench.profile`)

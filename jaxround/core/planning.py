@@ -46,7 +46,8 @@ ENTRY_CANDIDATES = 2
 
 
 class Vehicles(NamedTuple):
-    """The state the planning reads, (M,) each, at time `t` of the step."""
+    """The state the planning reads, (M,) each, at time `t` of the step;
+    clock and vid only where internal lanes cross (`crossing_leader_speed`'s)."""
 
     route: jax.Array
     pos: jax.Array
@@ -54,6 +55,8 @@ class Vehicles(NamedTuple):
     speed_factor: jax.Array
     active: jax.Array
     waiting_s: jax.Array
+    clock: jax.Array | None = None
+    vid: jax.Array | None = None
 
 
 class Stepping(NamedTuple):
@@ -282,7 +285,7 @@ def yield_line(
             v_link,
             crossing_leader_speed(
                 net, car, veh.route, start.lane_index, veh.pos, speed, veh.active,
-                start.v_lane,
+                start.v_lane, veh.clock, veh.vid,
                 dt=dt, n_substeps=step.n_substeps, action_step=step.action_step,
             ),
         )  # fmt: skip

@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from jaxround.core.crossing_leaders import conflict_clock
 from jaxround.core.dynamics import SpeedPatch
 from jaxround.core.geometry import NetArrays
 from jaxround.core.junction import Approach
@@ -67,17 +68,22 @@ class LaneState:
         lane_seconds: float (L,) vehicle-seconds on each lane (a vehicle
             counts on the lane of its front after the step's changes), as
             SUMO's lane data (``--lanedata-output``) sums ``sampledSeconds``.
+        conflict_clock: float (M,) when each front entered the internal lane
+            that leaves its junction (+inf elsewhere), kept only where
+            internal lanes cross (`jaxround.core.crossing_leaders`).
     """
 
     memory: Memory
     changes: jax.Array
     lane_seconds: jax.Array
+    conflict_clock: jax.Array
 
     @classmethod
     def zeros(cls, m: int, n: int, n_lanes: int) -> LaneState:
         return cls(
-            Memory.zeros(m), jnp.zeros(n, jnp.int32), jnp.zeros(n_lanes, jnp.float32)
-        )
+            Memory.zeros(m), jnp.zeros(n, jnp.int32),
+            jnp.zeros(n_lanes, jnp.float32), jnp.full(m, jnp.inf, jnp.float32),
+        )  # fmt: skip
 
 
 def driver_numbers(d: DriverConfig) -> Driver:
@@ -273,9 +279,21 @@ class LaneChanger:
         seconds = lanes.lane_seconds.at[result.lane].add(
             jnp.where(active, self.dt, 0.0)
         )
-        state = state.replace(
-            route=jnp.where(active, result.path, state.route),
-            pos=jnp.where(active, result.pos, state.pos),
-            lanes=LaneState(memory, lanes.changes.at[vid].add(1, mode="drop"), seconds),
-        )
-        return state, jnp.where(active, result.direction, 0)
+        route = jnp.where(active, result.path, state.route)
+        pos = jnp.where(active, result.pos, state.pos)
+        clock = lanes.conflict_clock
+        if net is not None and net.crossing is not None:
+            t = (state.step - 1).astype(jnp.float32) * self.dt  # the step's start
+            clock = conflict_clock(net, route, pos, active, clock, t)
+        changes = lanes.changes.at[vid].add(1, mode="drop")
+        return state.replace(
+            route=route, pos=pos, lanes=LaneState(memory, changes, seconds, clock)
+        ), jnp.where(active, result.direction, 0)
+
+    @staticmethod
+    def junction_order(
+        state: EnvState, net: NetArrays
+    ) -> tuple[jax.Array, jax.Array] | None:
+        """`dynamics.planned_speed`'s ``junction_order``: (clock, vid) where
+        internal lanes cross, None elsewhere."""
+        return None if net.crossing is None else (state.lanes.conflict_clock, state.vid)

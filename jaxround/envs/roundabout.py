@@ -52,10 +52,9 @@ class RoundaboutEnv:
     roads (`jaxround.lanes.ring_network`'s network, `lane_changer` given)
     the vehicles change lanes after every move (`jaxround.envs.lane_changes`).
 
-    M: given, else the config's ``simulation.max_vehicles``, else what the
-    scenario's traffic needs (`jaxround.envs.slots`); ``"road"``: what the road
-    holds. Static settings (shapes, dt, the network) live
-    here; traced numbers in `EnvParams`; everything that changes in `EnvState`.
+    M: given, else the config's ``simulation.max_vehicles``, else what its
+    traffic needs (`jaxround.envs.slots`); ``"road"``: what the road holds.
+    Static settings live here; traced numbers in `EnvParams`; state `EnvState`.
     """
 
     def __init__(
@@ -265,6 +264,7 @@ class RoundaboutEnv:
             net, pv, state.route, state.pos, state.speed, state.speed_factor,
             state.active, state.waiting_s, state.registrations, t, self.dt,
             self.n_substeps, self.action_step, command=command, patch=patch,
+            junction_order=changer and changer.junction_order(state, net),
         )  # fmt: skip
         with jax.named_scope("move"):
             pos_next = state.pos + v_next * self.dt
