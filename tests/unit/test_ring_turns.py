@@ -78,17 +78,18 @@ def assert_same_numbers(got, want) -> None:
 
 
 def test_the_vehicles_turns_are_every_slots_turns(episode) -> None:
-    """On 200 steps' states, the loop and the scan give the same changes and
-    memory (floats to their rounding), and the same gradient (the loop's is
-    the scan's, recomputed)."""
+    """On every fourth of the last 200 steps' states, the loop and the scan
+    give the same changes and memory (floats to their rounding), and the same
+    gradient (the loop's is the scan's, recomputed)."""
     env, params, (states, _, _) = episode
     changer = env.lane_changer
     lc = params.lane_change
     dt = changer.dt
     loop = jax.jit(ring_turns.turns_of_vehicles, static_argnums=4)
     scan = jax.jit(ring_turns.turns_of_every_slot, static_argnums=4)
+    context = jax.jit(ring_changer.context, static_argnums=3)
     moved = 0
-    for t in range(STEPS - 200, STEPS):
+    for t in range(STEPS - 200, STEPS, 4):
         state = jax.tree.map(lambda x, t=t: x[t], states)
         veh, memory = changer.vehicles(state)
         assert 0 < int(veh.active.sum()) < veh.active.shape[0]
@@ -99,7 +100,7 @@ def test_the_vehicles_turns_are_every_slots_turns(episode) -> None:
         (changes, after), (changes_all, after_all) = got, want
         # what an empty slot saw is no one's business, nor what a vehicle on
         # an edge without a changer (SUMO does not look there): the others'
-        on = np.asarray(ring_changer.context(changer.arrays, veh, lc, dt).decides)
+        on = np.asarray(context(changer.arrays, veh, lc, dt).decides)
         assert on.sum() > 0
         for a, b in zip(
             jax.tree.leaves(changes.sight), jax.tree.leaves(changes_all.sight),
@@ -129,12 +130,12 @@ def test_the_vehicles_turns_are_every_slots_turns(episode) -> None:
         np.testing.assert_allclose(np.asarray(grad(veh.speed)), want, rtol=1e-6)
 
 
-@pytest.mark.parametrize("batch", [7, 16])
+@pytest.mark.parametrize("batch", [7])
 def test_a_batch_two_to_a_lane_takes_each_roundabouts_turns(episode, batch) -> None:
     """Under `vmap`, `ring_batches` (two roundabouts to a lane of the loop,
-    an odd batch leaving one alone) gives each roundabout the changes and
-    memory of its own loop (`turns_of_vehicles`), per-roundabout parameters
-    and a second `vmap` included."""
+    an odd batch leaving one alone: three pairs and one) gives each
+    roundabout the changes and memory of its own loop (`turns_of_vehicles`),
+    per-roundabout parameters and a second `vmap` included."""
     env, params, (states, _, _) = episode
     changer = env.lane_changer
     dt = changer.dt
