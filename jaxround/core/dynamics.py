@@ -145,8 +145,10 @@ def planned_speed(
             net, car, veh, start, leader, limits, line, ahead, prev_regs, t,
             v_follow=v_follow, step=step,
         )  # fmt: skip
-    # link leaders at every merge of the look-ahead, not only the next one
+    # link leaders at every merge of the look-ahead, not only the next one,
+    # and where the next internal lane crosses another
     v_follow = jnp.minimum(v_follow, jnp.min(ahead.v_link_k, axis=1))
+    v_follow = jnp.minimum(v_follow, line.v_cross)
     with jax.named_scope("entry_test"):
         blocked_w, own_entry = right_of_way.entry_test(
             net, car, veh, start, line, ahead, requests, t, step=step

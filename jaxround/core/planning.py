@@ -238,9 +238,14 @@ class YieldLine(NamedTuple):
     """`yield_line`, (M,) each: to_line the distance to the yield line
     (negative past it); v_wait the speed that stops there; v_link, to_link
     the link leaders' speed at the next merge and the distance to it;
-    leave_cap v_link before the line (inf after); can_brake the vehicle can
-    still stop before the line; before_line active and before it;
-    impatience SUMO's getImpatience (grows with the waiting time)."""
+    leave_cap v_link and v_cross before the line (inf after); can_brake the
+    vehicle can still stop before the line; before_line active and before
+    it; impatience SUMO's getImpatience (grows with the waiting time);
+    v_cross the link leaders' speed where the next internal lane crosses
+    another (inf without one): SUMO meets them at the exit link, after the
+    entry link's arrival and pass speed are set (``planMoveInternal``), so
+    they cap the entry's leave speed (``adaptLeaveSpeed``) and the final
+    speed, not the entry's approach."""
 
     to_line: jax.Array
     v_wait: jax.Array
@@ -250,6 +255,7 @@ class YieldLine(NamedTuple):
     can_brake: jax.Array
     before_line: jax.Array
     impatience: jax.Array
+    v_cross: jax.Array
 
 
 def impatience_after(car: CarFollowing, waiting_s: jax.Array) -> jax.Array:
@@ -280,23 +286,29 @@ def yield_line(
     v_link, to_link = link_leader_speed(
         net, car, veh, start.v_lane, to_line > 0, v_wait, step=step, tables=tables
     )
+    v_cross = jnp.full_like(v_link, jnp.inf)
     if net.crossing is not None:  # the link leaders on crossing internal lanes
-        v_link = jnp.minimum(
-            v_link,
-            crossing_leader_speed(
-                net, car, veh.route, start.lane_index, veh.pos, speed, veh.active,
-                start.v_lane, veh.clock, veh.vid,
-                dt=dt, n_substeps=step.n_substeps, action_step=step.action_step,
-            ),
+        v_cross = crossing_leader_speed(
+            net, car, veh.route, start.lane_index, veh.pos, speed, veh.active,
+            start.v_lane, veh.clock, veh.vid,
+            dt=dt, n_substeps=step.n_substeps, action_step=step.action_step,
         )  # fmt: skip
-    leave_cap = jnp.where(to_line > 0, v_link, jnp.inf)
+    leave_cap = jnp.where(to_line > 0, jnp.minimum(v_link, v_cross), jnp.inf)
     can_brake = (to_line > brake_gap(speed, car.decel, 0.0, dt)) | (
         speed < car.decel * dt
     )
     before_line = veh.active & (to_line > 0)
     impatience = impatience_after(car, veh.waiting_s)
     return YieldLine(
-        to_line, v_wait, v_link, to_link, leave_cap, can_brake, before_line, impatience
+        to_line,
+        v_wait,
+        v_link,
+        to_link,
+        leave_cap,
+        can_brake,
+        before_line,
+        impatience,
+        v_cross,
     )
 
 
