@@ -48,10 +48,15 @@ def test_each_left_entry_crosses_the_outer_ring_lane_going_on(tmp_path: Path) ->
     )
 
 
-def test_the_option_is_off_by_default_and_runs_when_on() -> None:
+@pytest.fixture(scope="module")
+def crossing_env():
+    return make(load_config("two_lane"), crossing_leaders=True)
+
+
+def test_the_option_is_off_by_default_and_runs_when_on(crossing_env) -> None:
     cfg = load_config("two_lane")
     assert make(cfg)[0].net.crossing is None
-    env, params = make(cfg, crossing_leaders=True)
+    env, params = crossing_env
     assert env.net.crossing is not None
     schedule = env.schedule_from_numpy(make_schedule(cfg, seed=0))
     steps = int(600 / env.dt)  # ten minutes of the hour keep CI within its time
@@ -84,11 +89,6 @@ def _two_on_the_crossing(env, params, clock: tuple[float, float], speeds=(5.0, 5
         jnp.full(2, 13.89), jnp.array(clock), jnp.array([0, 1]),
         dt=env.dt, n_substeps=env.n_substeps, action_step=env.action_step,
     )  # fmt: skip
-
-
-@pytest.fixture(scope="module")
-def crossing_env():
-    return make(load_config("two_lane"), crossing_leaders=True)
 
 
 def test_on_the_junction_the_first_to_enter_leads(crossing_env) -> None:
