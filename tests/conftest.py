@@ -111,7 +111,7 @@ SLOW_FILES = (
     "tests/sumo/test_ring_changer_traffic.py",  # 15
     "tests/sumo/test_ring_changer.py",  # 15
     "tests/sumo/test_lane_hold_probe.py",  # 90: SUMO's holds, 3 x 600 s in both
-    "tests/sumo/test_crossing_leaders.py",  # 70: 10 minutes of two lanes, the option on
+    "tests/sumo/test_crossing_leaders.py",  # 20: 10 minutes of two lanes, the option on
 )
 
 
