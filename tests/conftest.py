@@ -85,33 +85,38 @@ def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
 #: (one file each at a time, ``--dist loadfile``) finish together rather than
 #: one of them ending the run with a long file.
 SLOW_FILES = (
-    "tests/study/test_study_browser.py",  # 160: rides in real time
-    "tests/study/test_study_browser_lanes.py",  # 25: a two-lane ride
-    "tests/e2e/test_pipeline.py",  # 115
-    "tests/e2e/test_notebooks.py",  # 170
-    "tests/sumo/test_bench.py",  # 95
-    "tests/sumo/test_ray_executor.py",  # 85
+    "tests/e2e/test_two_lane_agents.py",  # 380: training, evaluations, a search
+    "tests/unit/test_ring_turns.py",  # 270: 4 min of two lanes, three gradients
+    "tests/study/test_study_browser.py",  # 155: rides in real time
+    "tests/sumo/test_ray_executor.py",  # 145
+    "tests/e2e/test_notebooks.py",  # 120
+    "tests/unit/test_gradients.py",  # 110
+    "tests/e2e/test_pipeline.py",  # 105
+    "tests/sumo/test_bench.py",  # 105
+    "tests/sumo/test_drivers.py",  # 80
+    "tests/unit/test_ppo.py",  # 75
+    "tests/sumo/test_env.py",  # 65
+    "tests/e2e/test_search_cli.py",  # 65
     "tests/e2e/test_distributed_train.py",  # 60
-    "tests/e2e/test_search_cli.py",  # 55
-    "tests/unit/test_gradients.py",  # 70
-    "tests/unit/test_setting_search.py",  # 46
-    "tests/unit/test_ppo.py",  # 60
-    "tests/unit/test_ring_turns.py",  # 58: 4 min of two lanes, 200 changer steps
-    "tests/unit/test_entry_hold.py",  # 20: 200 s of two lanes, the changer each step
-    "tests/unit/test_demand_gradient.py",  # 40
-    "tests/e2e/test_apg.py",  # 40
-    "tests/e2e/test_two_lane_agents.py",  # 150: training, evaluations, a search
-    "tests/sumo/test_conflicts_sumo.py",  # 40
-    "tests/sumo/test_entry_hold_sumo.py",  # 42
-    "tests/sumo/test_drivers.py",  # 60
-    "tests/sumo/test_lane_requests.py",  # 70: three SUMO runs and replays
-    "tests/sumo/test_two_lane_step.py",  # 55: a parity run on two lanes
+    "tests/e2e/test_train_cli.py",  # 55
+    "tests/e2e/test_apg.py",  # 55
+    "tests/unit/test_setting_search.py",  # 50
+    "tests/sumo/test_av.py",  # 50
+    "tests/unit/test_entry_hold.py",  # 50: 200 s of two lanes, the changer each step
+    "tests/sumo/test_lane_hold_probe.py",  # 50: SUMO's holds, 3 x 600 s in both
+    "tests/sumo/test_two_lane_step.py",  # 45: a parity run on two lanes
+    "tests/unit/test_capacity.py",  # 45
+    "tests/sumo/test_entry_hold_sumo.py",  # 45
+    "tests/e2e/test_cli.py",  # 35
+    "tests/sumo/test_lane_requests.py",  # 35: three SUMO runs and replays
+    "tests/unit/test_demand_gradient.py",  # 35
+    "tests/sumo/test_conflicts_sumo.py",  # 35
+    "tests/study/test_study_browser_lanes.py",  # 25: a two-lane ride
+    "tests/sumo/test_ring_rounds.py",  # 25
+    "tests/sumo/test_crossing_leaders.py",  # 20: 10 minutes of two lanes, the option on
     "tests/sumo/test_lane_action.py",  # 16: a lane rule in both simulators
-    "tests/sumo/test_ring_rounds.py",  # 20
     "tests/sumo/test_ring_changer_traffic.py",  # 15
     "tests/sumo/test_ring_changer.py",  # 15
-    "tests/sumo/test_lane_hold_probe.py",  # 90: SUMO's holds, 3 x 600 s in both
-    "tests/sumo/test_crossing_leaders.py",  # 20: 10 minutes of two lanes, the option on
 )
 
 
