@@ -29,6 +29,11 @@ def builtin_dict(name: str = "milan") -> dict[str, Any]:
 #: JAX slots of `small_config`'s scenarios: Milan's own at its full demand.
 SMALL_SLOTS = 32
 
+#: two_lane.yaml's slots as `jaxround.envs.slots` sizes them from its traffic,
+#: for the tests that run its demand: sizing runs the scenario first (about
+#: a minute), and whichever test sized it first paid for the others.
+TWO_LANE_SLOTS = 56
+
 
 def small_config(
     name: str = "milan",

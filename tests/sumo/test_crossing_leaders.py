@@ -19,6 +19,7 @@ from jaxround.lanes.ring_network import compile_lane_network
 from jaxround.scenario.config import load_config
 from jaxround.scenario.schedule import make_schedule
 from jaxround.sumo_files.netconvert import network_file
+from tests.conftest import TWO_LANE_SLOTS
 
 pytestmark = pytest.mark.sumo
 
@@ -48,19 +49,15 @@ def test_each_left_entry_crosses_the_outer_ring_lane_going_on(tmp_path: Path) ->
     )
 
 
-#: two_lane.yaml's slots as `jaxround.envs.slots` sizes them from its traffic,
-#: given here: sizing runs the scenario first (about a minute)
-SLOTS = 56
-
-
 @pytest.fixture(scope="module")
 def crossing_env():
-    return make(load_config("two_lane"), max_vehicles=SLOTS, crossing_leaders=True)
+    cfg = load_config("two_lane")
+    return make(cfg, max_vehicles=TWO_LANE_SLOTS, crossing_leaders=True)
 
 
 def test_the_option_is_off_by_default_and_runs_when_on(crossing_env) -> None:
     cfg = load_config("two_lane")
-    assert make(cfg, max_vehicles=SLOTS)[0].net.crossing is None
+    assert make(cfg, max_vehicles=TWO_LANE_SLOTS)[0].net.crossing is None
     env, params = crossing_env
     assert env.net.crossing is not None
     schedule = env.schedule_from_numpy(make_schedule(cfg, seed=0))

@@ -16,6 +16,7 @@ from jaxround.envs.roundabout import make
 from jaxround.lanes import actions as lca
 from jaxround.scenario.config import load_config
 from jaxround.scenario.schedule import make_schedule
+from tests.conftest import TWO_LANE_SLOTS
 
 pytestmark = pytest.mark.sumo
 
@@ -53,7 +54,7 @@ def test_the_step_holds_about_as_often_as_sumo() -> None:
     cfg = load_config("two_lane")
     seeds, duration_s = (0, 1, 2), 600.0
     sumo = sum(len(held_steps(cfg, duration_s, seed)) for seed in seeds)
-    env, params = make(cfg)
+    env, params = make(cfg, max_vehicles=TWO_LANE_SLOTS)
     starts = [
         env.reset_to_schedule(
             env.schedule_from_numpy(make_schedule(cfg, seed)), params

@@ -21,6 +21,7 @@ from jaxround.envs.roundabout import make
 from jaxround.lanes.params import LaneChangeParams
 from jaxround.scenario.schedule import make_schedule
 from jaxround.sumo_files.netconvert import network_file
+from tests.conftest import TWO_LANE_SLOTS
 
 #: Steps run (0.5 s each): queues and a busy ring.
 STEPS = 400
@@ -44,7 +45,7 @@ def foe_lanes(net_file: Path) -> dict[str, set[str]]:
 
 
 def test_a_change_is_held_while_the_target_entrys_foe_lanes_are_occupied() -> None:
-    env, params = make("two_lane", max_vehicles=56)
+    env, params = make("two_lane", max_vehicles=TWO_LANE_SLOTS)
     changer = LaneChanger(env.cfg, network_file(env.cfg), hold_entries="occupied")
     net, lane_ids = env.net, env.network.lane_ids
     schedule = env.schedule_from_numpy(make_schedule(env.cfg, seed=0))
@@ -86,7 +87,7 @@ def test_a_change_is_held_while_the_target_entrys_foe_lanes_are_occupied() -> No
 
 
 def test_the_step_holds_as_sumo_1_28_by_default() -> None:
-    env, params = make("two_lane", max_vehicles=56)
+    env, params = make("two_lane", max_vehicles=TWO_LANE_SLOTS)
     assert env.lane_changer.hold_entries == "parallel"
     with pytest.raises(ValueError, match="hold_entries='sometimes'"):
         LaneChanger(env.cfg, network_file(env.cfg), hold_entries="sometimes")

@@ -16,6 +16,7 @@ from jaxround.envs.roundabout import make
 from jaxround.lanes import ring_batches, ring_changer, ring_rounds, ring_turns
 from jaxround.lanes.views import Memory
 from jaxround.scenario.schedule import make_schedule
+from tests.conftest import TWO_LANE_SLOTS
 
 #: Steps run (0.5 s each): the ring has filled and vehicles come and go.
 STEPS = 480
@@ -37,7 +38,7 @@ def episode():
     """Four minutes of two_lane.yaml's human drivers: each step's state
     after it (stacked), and how many vehicles entered a slot in it and did
     so with memory left in the slot."""
-    env, params = make("two_lane", max_vehicles=56)
+    env, params = make("two_lane", max_vehicles=TWO_LANE_SLOTS)
     policy = uncontrolled_policy(env)
     schedule = env.schedule_from_numpy(make_schedule(env.cfg, seed=0))
     obs, state = env.reset_to_schedule(schedule, params)
