@@ -2,9 +2,11 @@
 run --config` on `two_lane`'s roads trains a policy with three lane choices
 (no request, left, right) and evaluates it in JAX and, through the exported
 controller, in SUMO, beside uncontrolled AVs and the best constant, lane
-changes per vehicle in its tables; `jaxround evaluate` drives it; the lane
-choices it makes reach both simulators as lane requests; `jaxround search`
-finds a constant AV setting on them.
+changes per vehicle in its tables (through `pipeline.evaluate_everywhere`,
+which `jaxround evaluate --sim sumo` runs; the command's own arguments and
+its JAX-only run are tested on Milan, tests/e2e/test_train_cli.py); the
+lane choices it makes reach both simulators as lane requests; `jaxround
+search` finds a constant AV setting on them.
 
 One tiny main job (two roundabouts, two updates of 8 steps, 20 s of demand
 in training, 16 vehicles in 30 s in evaluation) is shared by the tests; what
@@ -93,26 +95,6 @@ def test_main_job_on_two_lanes(main_job: Path) -> None:
     assert (
         "lane changes per veh AV" in (main_job / "sumo_policy_absolute.md").read_text()
     )
-
-
-def test_evaluate_a_two_lane_policy(
-    run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    """`jaxround evaluate` drives every vehicle of a small two-lane demand
-    to its exit with the policy, uncontrolled AVs and the scenario's best
-    constant (configs/best_constant/two_lane.json, the scenario's name)."""
-    scenario = small_scenario(tmp_path, "two_lane", n_vehicles=N_VEHICLES)
-    argv = [
-        "evaluate", "--policy", str(run), "--config", str(scenario),
-        "--penetrations", "50", "--max-vehicles", "16", "--json",
-    ]  # fmt: skip
-    assert main(argv) == 0
-    report = json.loads(capsys.readouterr().out)
-    assert set(report["results"]) == {"policy", "uncontrolled", "best_constant"}
-    source = "configs/best_constant/two_lane.json"
-    assert report["best_constant"]["source"] == source
-    for driver in report["results"].values():
-        assert driver["50"]["all"]["n_arrived"] == N_VEHICLES
 
 
 def test_each_lane_choice_is_its_request(run: Path, tmp_path: Path) -> None:
