@@ -15,13 +15,7 @@ ray = pytest.importorskip("ray")
 
 from jaxround.apps.cli.main import main  # noqa: E402
 from sumo_export import executors  # noqa: E402
-from sumo_export.evaluate import (  # noqa: E402
-    compare_drivers,
-    policy_controller,
-    sumo_runs,
-)
-from tests.conftest import builtin_dict, small_config  # noqa: E402
-from tests.sumo.test_controller import write_standin_policy  # noqa: E402
+from tests.conftest import builtin_dict  # noqa: E402
 
 pytestmark = pytest.mark.sumo
 
@@ -80,33 +74,3 @@ def test_jaxround_sumo_on_ray_gives_the_local_pools_numbers(
     on_ray = json.loads(capsys.readouterr().out)
     assert traffic_numbers(on_ray) == traffic_numbers(local)
     assert len(local["per_seed"]) == 2 and local["mean"]["all"]["n_arrived"] == 40
-
-
-def test_evaluate_in_sumo_on_ray_gives_the_local_pools_numbers(
-    local_ray: None,
-    scenario: Path,
-    tmp_path: Path,
-    capsys: pytest.CaptureFixture[str],
-) -> None:
-    """``jaxround evaluate --sim sumo --executor ray``: its evaluation.json's SUMO
-    numbers are those of the default pool's runs of the same policy."""
-    policy = write_standin_policy(tmp_path / "policy", bias=1.0)
-    out = tmp_path / "eval"
-    argv = ["evaluate", "--policy", str(policy), "--config", str(scenario),
-            "--sim", "sumo", "--seeds", "1", "--penetrations", "50", "--json",
-            "--workers", "2", "--executor", "ray", "--out", str(out)]  # fmt: skip
-    assert main(argv) == 0
-    capsys.readouterr()
-    written = json.loads((out / "evaluation.json").read_text())
-    # the default executor, as evaluate runs it
-    executors.use_executor("local")
-    cfg = small_config("milan", n_vehicles=40, duration_s=100.0)
-    factory = policy_controller(cfg, policy)
-    runs = sumo_runs(cfg, [0.5], [cfg.simulation.seed], 2, False, factory)
-    plain = sumo_runs(cfg, [0.5], [cfg.simulation.seed], 2, False)
-    # compared as evaluate compares them: over the same vehicles, one scale
-    both = compare_drivers(cfg, {"sumo": runs, "sumo_uncontrolled": plain})
-    local = {key: {"50": both[key][0.5]["mean"]} for key in both}
-    for key in ("sumo", "sumo_uncontrolled"):
-        assert traffic_numbers(written[key]) == traffic_numbers(local[key]), key
-    assert written["sumo"]["50"]["all"] != written["sumo_uncontrolled"]["50"]["all"]
