@@ -250,7 +250,9 @@ def cross_or_stop(
     speed, dt = veh.speed, step.dt
     seen = line.to_line
     open_in_sight = line.before_line & ~requests.beyond_visibility
-    v_pass = jnp.minimum(jnp.minimum(start.v_start, requests.approach_cap), line.v_link)
+    # the entry's vLinkPass: its drive item is set before the exit link's
+    # link leaders (the merge's, the crossing's) are met in planMoveInternal
+    v_pass = jnp.minimum(start.v_start, requests.approach_cap)
     v_safe_min = jnp.minimum(
         jnp.minimum((seen + STOP_OFFSET) / dt, v_pass), start.v_max_next
     )
