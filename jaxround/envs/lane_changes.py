@@ -13,7 +13,8 @@ a batch; docs/benchmarks.md) moves vehicles between lane
 paths, which are the step's routes (`jaxround.lanes.ring_network`). A
 change onto the other entry lane is held back as SUMO 1.28 holds it, while
 that lane's entry link would be closed to the vehicle's own approach
-(`jaxround.lanes.entry_hold`).
+(`jaxround.lanes.entry_hold`); a vehicle about to merge ahead on the
+target lane leads as SUMO's changer finds it (`jaxround.lanes.merge_leaders`).
 
 Shapes: M vehicle slots, N scheduled vehicles.
 """
@@ -44,6 +45,7 @@ from jaxround.lanes.entry_hold import (
 )
 from jaxround.lanes.follow import Driver
 from jaxround.lanes.memory import patch_speed, prepare_step
+from jaxround.lanes.merge_leaders import merge_leaders
 from jaxround.lanes.params import LaneChangeParams
 from jaxround.lanes.ring_network import compile_lane_network
 from jaxround.lanes.ring_tables import RingLanes, ring_lanes
@@ -136,6 +138,9 @@ class LaneChanger:
             the vehicle's own approach; ``"off"``: never; ``"occupied"``
             and ``"approaching"``: two earlier readings, kept for
             comparison (figures in that module).
+        merge_leaders: the vehicles about to merge ahead on the target
+            lane lead a change as SUMO's changer finds them
+            (`jaxround.lanes.merge_leaders`); False leaves them out.
     """
 
     def __init__(
@@ -144,6 +149,7 @@ class LaneChanger:
         net_file: str | Path,
         in_rounds: bool = False,
         hold_entries: str = "parallel",
+        merge_leaders: bool = True,
     ) -> None:
         if hold_entries not in HOLD_MODES:
             raise ValueError(
@@ -157,6 +163,7 @@ class LaneChanger:
         self.dt = cfg.simulation.dt_s
         self.in_rounds = in_rounds
         self.hold_entries = hold_entries
+        self.merge_leaders = merge_leaders
 
     def request(
         self, state: EnvState, lane_action: jax.Array, agent: jax.Array
@@ -181,10 +188,12 @@ class LaneChanger:
         state: EnvState,
         request: jax.Array | None = None,
         hold: jax.Array | None = None,
+        merge: ring_changer.MergeLeaders | None = None,
     ) -> tuple[ring_changer.RingVehicles, Memory]:
         """The changer's view of ``state`` after the move, and the memory
         reset for the step (``prepareStep``; an empty slot's cleared);
-        ``hold`` (M, 2) as `RingVehicles.entry_hold`."""
+        ``hold`` and ``merge`` as `RingVehicles.entry_hold` and
+        `RingVehicles.merge`."""
         active = state.active
         memory = jax.tree.map(
             lambda x, z: jnp.where(active.reshape(-1, *([1] * (x.ndim - 1))), x, z),
@@ -196,7 +205,7 @@ class LaneChanger:
         veh = ring_changer.RingVehicles(
             path=state.route, pos=state.pos, speed=state.speed, accel=state.accel,
             active=active, driver=driver, speed_factor=state.speed_factor,
-            lane_request=request, entry_hold=hold,
+            lane_request=request, entry_hold=hold, merge=merge,
         )  # fmt: skip
         return veh, memory
 
@@ -250,7 +259,8 @@ class LaneChanger:
             lc: the lane-change parameters (scalars or (M,)).
             request: int (M,) a lane index TraCI asks for (-1: none), or None.
             net, car: the step's network and each vehicle's car-following
-                numbers, for the hold at entries (None: no hold).
+                numbers, for the hold at entries and the merges' link
+                leaders (None: neither).
             own_entry: each vehicle's approach to its own entry link, as the
                 step registered it (`jaxround.core.dynamics.Planned`), for
                 the hold of ``hold_entries="parallel"``.
@@ -264,7 +274,13 @@ class LaneChanger:
         hold = None
         if self.hold_entries != "off" and net is not None and car is not None:
             hold = self.holds(state, net, car, own_entry)
-        veh, memory = self.vehicles(state, request, hold)
+        merge = None
+        if self.merge_leaders and net is not None and car is not None:
+            merge = merge_leaders(
+                net, self.arrays, car, state.route, state.pos, state.speed,
+                active, self.dt,
+            )  # fmt: skip
+        veh, memory = self.vehicles(state, request, hold, merge)
         if self.in_rounds:
             result, memory, _ = ring_rounds.change_lanes(
                 self.arrays, veh, memory, lc, self.dt

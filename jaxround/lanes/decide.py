@@ -49,8 +49,10 @@ class Side(NamedTuple):
     """What the candidate sees on one side: may it look there at all (the
     lane exists and changing to it is allowed), the target lane's leader
     and follower with their slots, the target lane's LaneQ, the roundabout
-    bonus of that look (m), and whether a foe at the target lane's entry
-    link holds a change there back (`jaxround.lanes.entry_hold`)."""
+    bonus of that look (m), whether a foe at the target lane's entry
+    link holds a change there back (`jaxround.lanes.entry_hold`), and
+    whether a critical leader other than the target lane's leader is too
+    near (`jaxround.lanes.merge_leaders`)."""
 
     may: jax.Array
     ego: Ego
@@ -61,6 +63,7 @@ class Side(NamedTuple):
     follow_slot: jax.Array
     bonus: jax.Array | float
     held: jax.Array | bool = False
+    critical: jax.Array | bool = False
 
 
 class Told(NamedTuple):
@@ -148,13 +151,20 @@ def turn_of(
         sgp = wish.speed_gain_probability
         krp = wish.keep_right_probability
         look = wish.look_ahead_speed
-        # `checkChange`: a wanted change nothing blocked may still be held
-        # back at the target lane's entry (`unsafeLinkAhead`); then the
-        # request once more, on the state with the blocked bits
+        # `checkChange`: a wanted change nothing blocked may still be blocked
+        # by a critical leader (`getCriticalLeader`) and held back at the
+        # target lane's entry (`unsafeLinkAhead`); then the request once
+        # more, on the state with the blocked bits
         wanted = (blocked == 0) & ((wish.state & lca.WANTS_LANECHANGE) != 0)
+        by_leader = (
+            lca.BLOCKED_BY_RIGHT_LEADER if direction < 0 else lca.BLOCKED_BY_LEFT_LEADER
+        )
+        critical = jnp.where(wanted & side.critical, by_leader, 0)
         held = jnp.where(wanted & side.held, lca.HELD, 0)
         states[direction] = jnp.where(
-            side.may, traci.influence(wish.state | blocked | held, request), 0
+            side.may,
+            traci.influence(wish.state | blocked | critical | held, request),
+            0,
         )
         for advice in wish.own_advices:
             advices = push_advice(advices, advice)

@@ -27,9 +27,11 @@ find it (SUMO's source as read in docs/lc2013-map.md section 2):
   violated, a vehicle coming over a minor link with its gap floored at 0.
 
 SUMO 1.28's hold before an entry is `jaxround.lanes.entry_hold`'s, given
-as `RingVehicles.entry_hold`. Not here: link leaders (vehicles on a crossing
-or merging junction lane), `getCriticalLeader`, `unsafeLinkAhead`, partial
-vehicles on the follower side, stops.
+as `RingVehicles.entry_hold`. The vehicles about to merge ahead on the
+target lane (link leaders, as the target lane's leader and as
+`getCriticalLeader` finds them) are `jaxround.lanes.merge_leaders`'s,
+given as `RingVehicles.merge`. Not here: link leaders of crossing junction
+lanes, `unsafeLinkAhead`, partial vehicles on the follower side, stops.
 
 Shapes: M vehicle slots, L lanes, P paths, K path positions, Z lanes of an
 edge, C, U as in `jaxround.lanes.ring_tables`.
@@ -46,8 +48,9 @@ from jaxround.lanes import ring_neighbours as neighbours
 from jaxround.lanes import traci
 from jaxround.lanes.changer import FAR, _pick
 from jaxround.lanes.decide import Kept, Side, Told, turn_of
-from jaxround.lanes.follow import Driver
+from jaxround.lanes.follow import Driver, secure_gap
 from jaxround.lanes.inform import slow_down_for_blocked
+from jaxround.lanes.merge_leaders import MergeLeaders
 from jaxround.lanes.params import LaneChangeParams
 from jaxround.lanes.ring_neighbours import RingArrays, Scene
 from jaxround.lanes.views import Ego, LaneQ, Memory, Neighbour, push_advice
@@ -65,6 +68,8 @@ class RingVehicles(NamedTuple):
         entry_hold: bool (M, 2) a change right / left would be held back at
             the target lane's entry link (`jaxround.lanes.entry_hold`; None:
             never).
+        merge: the merge link leaders on the target lanes
+            (`jaxround.lanes.merge_leaders`; None: none).
     """
 
     path: jax.Array
@@ -76,6 +81,7 @@ class RingVehicles(NamedTuple):
     speed_factor: jax.Array
     lane_request: jax.Array | None = None
     entry_hold: jax.Array | None = None
+    merge: MergeLeaders | None = None
 
 
 class Sight(NamedTuple):
@@ -268,6 +274,7 @@ def turn(ctx: Context, i: jax.Array, view: View, memory: Memory) -> Outcome:
         tz = jnp.maximum(net.lane_side[own, side], 0)
         q = jnp.maximum(net.change_path[p, k, side], 0)
         lead = neighbours.leader_on(net, scene, i, q, tz, own, dt)
+        lead, critical = with_merge(veh, i, side, lead, me, lc_i.safety_factor)
         back = neighbours.follower_on(net, scene, i, tz)
         bonus = neighbours.roundabout_bonus(
             net, occupied, (p, k, z_own, side), own, pos_i, lc_i.cooperative
@@ -279,6 +286,7 @@ def turn(ctx: Context, i: jax.Array, view: View, memory: Memory) -> Outcome:
             lead=neighbour(*lead), lead_slot=lead[0],
             follow=neighbour(*back), follow_slot=back[0], bonus=bonus,
             held=False if veh.entry_hold is None else veh.entry_hold[i, side],
+            critical=critical,
         ))  # fmt: skip
         targets.append(tz)
         paths.append(q)
@@ -326,6 +334,41 @@ def turn(ctx: Context, i: jax.Array, view: View, memory: Memory) -> Outcome:
             *(jnp.stack([seen[0][f], seen[1][f]]) for f in range(5)),
         ),
     )
+
+
+def with_merge(
+    veh: RingVehicles,
+    i: jax.Array,
+    side: int,
+    lead: tuple[jax.Array, jax.Array, jax.Array],
+    me: Driver,
+    safety_factor: jax.Array,
+) -> tuple[tuple[jax.Array, jax.Array, jax.Array], jax.Array | bool]:
+    """Vehicle ``i``'s leader on the target lane of ``side`` (slot, exists,
+    gap) with the merge's link leader (`jaxround.lanes.merge_leaders`):
+    it leads unless a leader's back comes before the merge's link
+    (`getLeaderOnConsecutive`); then whether, behind such a leader, it
+    blocks the change as a critical leader (`getCriticalLeader`)."""
+    if veh.merge is None:
+        return lead, False
+    slot, exists, gap = lead
+    m_slot = veh.merge.slot[i, side]
+    m_gap = veh.merge.gap[i, side]
+    has_link = m_slot >= 0
+    before = exists & (gap + me.min_gap < veh.merge.link_at[i, side])
+    use_link = has_link & ~before
+    lead = (
+        jnp.where(use_link, m_slot, slot),
+        exists | use_link,
+        jnp.where(use_link, m_gap, gap),
+    )
+    v_link = veh.speed[jnp.maximum(m_slot, 0)]
+    secure = secure_gap(me, veh.speed[i], v_link) * safety_factor
+    critical = (
+        before & has_link & (m_slot != slot) & veh.merge.critical[i, side]
+        & (m_gap < secure)
+    )  # fmt: skip
+    return lead, critical
 
 
 def changes(ctx: Context, outcome: Outcome) -> RingChanges:
