@@ -151,6 +151,8 @@ class LinkLeader(NamedTuple):
         front_on: bool, the leader's front is still on the partner lane.
         to_link: float, distance to the start of the vehicle's merging lane
             (negative once on it).
+        to_end: float, distance to the end of the merging lane (the link
+            after it).
     """
 
     has: jax.Array
@@ -158,6 +160,7 @@ class LinkLeader(NamedTuple):
     gap: jax.Array
     front_on: jax.Array
     to_link: jax.Array
+    to_end: jax.Array
 
 
 def link_leader(
@@ -181,6 +184,26 @@ def link_leader(
     Args:
         km_fixed: the route lane index of the merge; default the next merge.
     """
+    return link_leader_of(
+        net, tables.link, tables.link_cur, route, pos, active, min_gap, km_fixed
+    )
+
+
+def link_leader_of(
+    net: NetArrays,
+    link: LinkTable,
+    link_cur: CurrentLink | None,
+    route: jax.Array,
+    pos: jax.Array,
+    active: jax.Array,
+    min_gap: jax.Array,
+    km_fixed: int | jax.Array | None = None,
+) -> LinkLeader:
+    """`link_leader` from the link tables; ``link_cur`` None for a vehicle
+    looking at a route it would change onto: every vehicle on the partner
+    lane leads it, on its merging lane too ("in the context of
+    lane-changing, all candidates are leaders", `MSLane::
+    getLeaderOnConsecutive`)."""
     k, _, _ = locate(net, route, pos)
     km = jnp.take_along_axis(net.merge_index[route], k[:, None], axis=1)[:, 0]  # (M,)
     if km_fixed is not None:  # the merge at route lane km_fixed, if it merges
@@ -195,14 +218,14 @@ def link_leader(
     to_crossing = start + net.lane_length[mine] - net.lane_converge[mine] - pos  # (M,)
     _, row_of = merging_lanes(net)
     row = jnp.maximum(jnp.asarray(row_of)[mine], 0)
-    link = tables.link
     me = jnp.arange(pos.shape[0])
-    t_slot, t_ok = first_other(link.best_slot[row], link.best_ok[row], me)
-    # on its merging lane (then it is the lane the vehicle is on, km == k):
-    # only the leaders nearer the crossing
-    on_junction = start - pos <= 0
-    slot = jnp.where(on_junction, tables.link_cur.slot, t_slot)
-    found = jnp.where(on_junction, tables.link_cur.found, t_ok)
+    slot, found = first_other(link.best_slot[row], link.best_ok[row], me)
+    if link_cur is not None:
+        # on its merging lane (then it is the lane the vehicle is on, km ==
+        # k): only the leaders nearer the crossing
+        on_junction = start - pos <= 0
+        slot = jnp.where(on_junction, link_cur.slot, slot)
+        found = jnp.where(on_junction, link_cur.found, found)
     has = has_merge & active & found
     slot = jnp.where(has, slot, 0)
     back_dist = link.back_dist[row, slot]
@@ -212,4 +235,5 @@ def link_leader(
         gap=to_crossing - min_gap - back_dist,
         front_on=link.front_on[row, slot],
         to_link=start - pos,
+        to_end=start + net.lane_length[mine] - pos,
     )

@@ -48,7 +48,7 @@ import jax.numpy as jnp
 
 from jaxround.core.geometry import NetArrays, locate
 from jaxround.core.junction import brake_gap
-from jaxround.core.link_leaders import first_other, link_table, merging_lanes
+from jaxround.core.link_leaders import link_leader_of, link_table
 from jaxround.core.params import CarFollowing
 from jaxround.lanes.ring_neighbours import RingArrays
 
@@ -99,10 +99,8 @@ def merge_leaders(
     reach = brake_gap(speed, car.decel, car.tau, dt) + car.min_gap
     looks = active & (arrays.lane_internal[own] | (seen <= reach))
     link = link_table(net, route, pos, active, car.length)
-    _, row_of = merging_lanes(net)
     own_start = jnp.take_along_axis(net.lane_offset[route], own[:, None], 1)[:, 0]
-    me = jnp.arange(pos.shape[0])
-    slots, gaps, links_at, critical = [], [], [], []
+    sides = []
     for side in (0, 1):
         target_path = arrays.change_path[route, k, side]
         target_lane = arrays.lane_side[own, side]
@@ -111,28 +109,15 @@ def merge_leaders(
         lane = jnp.where(can, target_lane, own)
         start = jnp.take_along_axis(net.lane_offset[path], lane[:, None], 1)[:, 0]
         there = jnp.where(can, pos - own_start + start, pos)
-        # the next merge of the path at or after the target lane
-        k_there, _, _ = locate(net, path, there)
-        km = jnp.take_along_axis(net.merge_index[path], k_there[:, None], 1)[:, 0]
-        has_merge = km >= 0
-        km = jnp.maximum(km, 0)
-        merging = jnp.take_along_axis(net.route_lanes[path], km[:, None], 1)[:, 0]
-        m_start = jnp.take_along_axis(net.route_lane_start[path], km[:, None], 1)[:, 0]
-        m_end = m_start + net.lane_length[merging]
-        to_crossing = m_end - net.lane_converge[merging] - there
-        row = jnp.maximum(jnp.asarray(row_of)[merging], 0)
-        # all candidates lead a changing vehicle: the nearest, not only
-        # those nearer the crossing
-        slot, found = first_other(link.best_slot[row], link.best_ok[row], me)
-        ok = can & has_merge & found
-        slot = jnp.where(ok, slot, 0)
-        slots.append(jnp.where(ok, slot, -1))
-        gaps.append(to_crossing - car.min_gap - link.back_dist[row, slot])
-        links_at.append(m_end - there)
-        critical.append(m_start - there <= reach)
-    return MergeLeaders(
-        slot=jnp.stack(slots, axis=1),
-        gap=jnp.stack(gaps, axis=1),
-        link_at=jnp.stack(links_at, axis=1),
-        critical=jnp.stack(critical, axis=1),
-    )
+        # the next merge of the target path; every vehicle on its partner
+        # lane leads a changing vehicle, not only those nearer the crossing
+        leader = link_leader_of(net, link, None, path, there, can, car.min_gap)
+        sides.append(
+            MergeLeaders(
+                slot=jnp.where(leader.has, leader.slot, -1),
+                gap=leader.gap,
+                link_at=leader.to_end,
+                critical=leader.to_link <= reach,
+            )
+        )
+    return jax.tree.map(lambda right, left: jnp.stack([right, left], axis=1), *sides)
