@@ -41,6 +41,7 @@ class NetArrays:
     entry_internal_length: jax.Array  # (G,)
     entry_visibility: jax.Array  # (G,)
     entry_lane: jax.Array  # (G,)
+    leg_entries: jax.Array  # (n_legs, G) float 1 where entry g is the leg's
     through_lane: jax.Array  # (G,) the ring's through lane at each entry
     lane_internal: jax.Array  # (L,) bool
     normal_cum: jax.Array  # (R, K) metres of normal lanes before lane k
@@ -121,6 +122,9 @@ class NetArrays:
             entry_internal_length=jnp.asarray(net.lane_length[net.entry_internal], f),
             entry_visibility=jnp.asarray(net.entry_visibility, f),
             entry_lane=jnp.asarray(net.entry_lane),
+            leg_entries=jnp.asarray(
+                net.entry_leg[None, :] == np.arange(net.n_legs)[:, None], f
+            ),
             through_lane=jnp.asarray(net.ring_through),
             lane_internal=jnp.asarray(internal),
             normal_cum=jnp.asarray(normal_cum, f),

@@ -120,6 +120,15 @@ class CompiledNetwork:
         return self.route_entry
 
     @property
+    def entry_leg(self) -> np.ndarray:
+        """int (G,) the leg of each entry: entry g < n_legs is leg g's (its
+        outer lane on a two-lane entry); the others are the inner lanes of
+        their routes' origin legs."""
+        leg = np.arange(self.n_entries) % self.n_legs
+        leg[self.entry_of_route] = self.route_od[:, 0]
+        return leg
+
+    @property
     def all_arrive(self) -> bool:
         """Every route ends where vehicles leave (a static fact)."""
         return self.route_arrives is None or bool(np.all(self.route_arrives))

@@ -123,8 +123,9 @@ class EpisodeStats:
     Attributes:
         trip_co2_mg: float (N,) CO2 of finished trips.
         trip_fuel_mg: float (N,) fuel of finished trips.
-        queue_sum: float (G,) sum over steps of queued vehicles per leg.
-        queue_max: float (G,) largest queue per leg.
+        queue_sum: float (n_legs,) sum over steps of queued vehicles per leg
+            (`jaxround.envs.queues.queued_per_leg`).
+        queue_max: float (n_legs,) largest queue per leg.
         queue_samples: int, steps summed into `queue_sum` (within the horizon).
         overflow: int, insertions postponed because every slot was full
             (vehicle-steps).
@@ -155,10 +156,10 @@ class EpisodeStats:
     encounter_conflict: jax.Array
 
     @classmethod
-    def zeros(cls, n: int, g: int, m: int) -> EpisodeStats:
-        """Nothing measured yet: N scheduled vehicles, G legs, M slots."""
+    def zeros(cls, n: int, n_legs: int, m: int) -> EpisodeStats:
+        """Nothing measured yet: N scheduled vehicles, `n_legs` legs, M slots."""
         zero = jnp.int32(0)
-        trips, legs = jnp.zeros(n, jnp.float32), jnp.zeros(g, jnp.float32)
+        trips, legs = jnp.zeros(n, jnp.float32), jnp.zeros(n_legs, jnp.float32)
         return cls(
             trips, trips, legs, legs, zero, zero, zero,
             conflicts=jnp.zeros(n, jnp.int32),
@@ -169,7 +170,7 @@ class EpisodeStats:
         )  # fmt: skip
 
     def fields(
-        self, n: int, g: int, m: int
+        self, n: int, n_legs: int, m: int
     ) -> dict[str, tuple[Any, tuple[int, ...], str]]:
         """`_check`'s table of these fields, named ``stats.<field>``."""
         table: dict[str, tuple[Any, tuple[int, ...], str]] = {}
@@ -179,7 +180,7 @@ class EpisodeStats:
         table["encounter_leader"] = (self.encounter_leader, (m,), "i")
         table["encounter_conflict"] = (self.encounter_conflict, (m,), "b")
         for name in ("queue_sum", "queue_max"):
-            table[name] = (getattr(self, name), (g,), "f")
+            table[name] = (getattr(self, name), (n_legs,), "f")
         for name in ("queue_samples", "overflow", "collisions"):
             table[name] = (getattr(self, name), (), "i")
         return {f"stats.{name}": entry for name, entry in table.items()}
@@ -244,8 +245,9 @@ class EnvState:
 
     def validate(self) -> None:
         """Check shapes and dtypes: per-slot fields (..., M), per-vehicle fields
-        (..., N), per-leg fields (..., G), registrations (..., M, G), counters
-        (...,), the same leading axes everywhere; ValueError naming the field.
+        (..., N), per-entry fields (..., G), registrations (..., M, G), the
+        queues (..., n_legs) with n_legs <= G, counters (...,), the same
+        leading axes everywhere; ValueError naming the field.
 
         Call it outside `jit` (it reads shapes only, so it works on traced
         values too, but raises at trace time)."""
@@ -270,7 +272,13 @@ class EnvState:
             fields[name] = (getattr(self, name), (m,), "f")
         for name in ("insert_s", "arrival_s"):
             fields[name] = (getattr(self, name), (n,), "f")
-        fields.update(self.stats.fields(n, g, m))
+        # legs: queue_max's (a two-lane entry is two entries G of one leg)
+        n_legs = jnp.shape(self.stats.queue_max)[-1]
+        if not 0 < n_legs <= g:
+            raise ValueError(
+                f"EnvState.stats.queue_max: {n_legs} legs, expected 1 to {g} (G)"
+            )
+        fields.update(self.stats.fields(n, n_legs, m))
         for name in Registrations._fields[1:]:
             fields[f"registrations.{name}"] = (
                 getattr(self.registrations, name), (m, g), "f",

@@ -20,9 +20,11 @@ def due(state: EnvState, t: jax.Array) -> jax.Array:
 
 
 def waiting_per_leg(state: EnvState, t: jax.Array) -> jax.Array:
-    """Vehicles of each leg due by `t` that have not entered yet, int (G,):
-    each leg's due vehicles are those of its schedule indices below `due`
-    (a binary search per leg), less those inserted (`EnvState.leg_inserted`)."""
+    """Vehicles of each entry due by `t` that have not entered yet, int (G,):
+    each entry's due vehicles are those of its schedule indices below `due`
+    (a binary search per entry), less those inserted (`EnvState.leg_inserted`).
+    Vehicles wait at their origin leg's entry g < n_legs; a two-lane entry's
+    second lane (g >= n_legs) has none waiting."""
     n_due = due(state, t)
     due_per_leg = jax.vmap(lambda row: jnp.searchsorted(row, n_due, side="left"))(
         state.leg_vehicles
@@ -33,15 +35,17 @@ def waiting_per_leg(state: EnvState, t: jax.Array) -> jax.Array:
 def queued_per_leg(
     net: NetArrays, state: EnvState, t: jax.Array, temperature: jax.Array
 ) -> jax.Array:
-    """Vehicles queued on each approach at time `t`, float (G,): halting there
-    (speed below `dynamics.HALTING_SPEED`, as SUMO's getLastStepHaltingNumber)
-    plus those due that wait to be inserted. Above temperature 0 (m/s) the
+    """Vehicles queued on each leg's approach at time `t`, float (n_legs,):
+    halting on its entry lanes (speed below `dynamics.HALTING_SPEED`, as
+    SUMO's ``edge.getLastStepHaltingNumber`` counts the whole edge) plus
+    those due that wait to be inserted. Above temperature 0 (m/s) the
     halting test is smooth (`jaxround.core.relax`); insertion stays exact."""
     _, lane, _ = geometry.locate(net, state.route, state.pos)
     on_entry = lane[None, :] == net.entry_lane[:, None]  # (G, M)
     slow = soft_step(dynamics.HALTING_SPEED - state.speed, temperature)
     halting = state.active * slow
-    return jnp.sum(on_entry * halting[None, :], axis=1) + waiting_per_leg(state, t)
+    per_entry = jnp.sum(on_entry * halting[None, :], axis=1) + waiting_per_leg(state, t)
+    return net.leg_entries @ per_entry  # (n_legs, G) @ (G,)
 
 
 def count_queues(

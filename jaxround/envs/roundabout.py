@@ -186,7 +186,7 @@ class RoundaboutEnv:
             insert_s=jnp.full(n, jnp.nan, jnp.float32),
             arrival_s=jnp.full(n, jnp.nan, jnp.float32),
             registrations=Registrations.empty(m, g),
-            stats=EpisodeStats.zeros(n, g, m),
+            stats=EpisodeStats.zeros(n, self.network.n_legs, m),
             lanes=None
             if self.lane_changer is None
             else LaneState.zeros(m, n, self.network.n_lanes),

@@ -100,6 +100,13 @@ def test_two_lane_parity_short_run() -> None:
     assert lanes["jax"]["inner_ring_share"] > 0.05
     assert report["inner_ring_share_diff_points"] < 10.0
     assert report["sumo_collisions"] == 0
+    # queues per leg in both (SUMO counts an approach edge's lanes together;
+    # JAX's entries are one per lane, summed per leg): 1.85 and 1.92 vehicles
+    # over the four legs here (2026-11-29)
+    jax_queue = report["jax"]["all"]["queue_mean_veh"]
+    sumo_queue = report["sumo"]["all"]["queue_mean_veh"]
+    assert len(jax_queue) == len(sumo_queue) == cfg.n_legs
+    assert abs(sum(jax_queue) / sum(sumo_queue) - 1.0) < 0.25
     # overlaps after changes beside a diverging or merging lane inside a
     # junction, which SUMO does not count (docs/two_lane.md): 4 here before
     # the bonus followed 1.28, none since
