@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from agents.common.config import load_ppo_config
 from agents.common.export import load_policy
@@ -43,6 +44,12 @@ def main_job(tmp_path_factory: pytest.TempPathFactory) -> Path:
     )  # fmt: skip
     (folder / "tiny.yaml").write_text(cfg.to_yaml())
     scenario = small_scenario(folder, "two_lane", n_vehicles=N_VEHICLES)
+    # slots for all its vehicles, so that the evaluation does not size them
+    # from the traffic first (a run of the two-lane step at 48 slots, about
+    # a minute; tests/e2e/test_pipeline.py's main job sizes its own)
+    d = yaml.safe_load(scenario.read_text())
+    d["simulation"]["max_vehicles"] = N_VEHICLES
+    scenario.write_text(yaml.safe_dump(d))
     out = folder / "run"
     argv = ["run", "--config", str(scenario), "--out", str(out), "--quick"]
     argv += ["--train-config", str(folder / "tiny.yaml"), "--workers", "1"]
