@@ -94,6 +94,21 @@ def driver_numbers(d: DriverConfig) -> Driver:
                   d.delta, d.max_speed)  # fmt: skip
 
 
+def car_driver(car: CarFollowing, shape: tuple[int, ...]) -> Driver:
+    """The changer's `Driver` of the step's car-following numbers, each
+    field broadcast to ``shape`` (the slots, (M,))."""
+
+    def full(x: jax.Array) -> jax.Array:
+        return jnp.broadcast_to(jnp.asarray(x, jnp.float32), shape)
+
+    return Driver(
+        accel=full(car.accel), decel=full(car.decel),
+        emergency_decel=full(car.emergency_decel), tau=full(car.tau),
+        min_gap=full(car.min_gap), length=full(car.length), delta=full(car.delta),
+        max_speed=full(car.max_speed),
+    )  # fmt: skip
+
+
 def changer_tables(cfg: ScenarioConfig, net_file: str | Path) -> RingLanes:
     """The changer's tables of a scenario's network (`ring_tables`), with
     the human drivers' look-ahead."""
@@ -189,19 +204,26 @@ class LaneChanger:
         request: jax.Array | None = None,
         hold: jax.Array | None = None,
         merge: ring_changer.MergeLeaders | None = None,
+        car: CarFollowing | None = None,
     ) -> tuple[ring_changer.RingVehicles, Memory]:
         """The changer's view of ``state`` after the move, and the memory
         reset for the step (``prepareStep``; an empty slot's cleared);
         ``hold`` and ``merge`` as `RingVehicles.entry_hold` and
-        `RingVehicles.merge`."""
+        `RingVehicles.merge`. Each vehicle's car-following numbers are the
+        step's, ``car`` (`EnvParams.for_vehicles`, with any retuning of the
+        step), as SUMO's LC2013 reads the vehicle's own (a TraCI ``setTau``
+        included); without it, its class's vType in the scenario."""
         active = state.active
         memory = jax.tree.map(
             lambda x, z: jnp.where(active.reshape(-1, *([1] * (x.ndim - 1))), x, z),
             prepare_step(state.lanes.memory), Memory.zeros(active.shape[0]),
         )  # fmt: skip
-        driver = jax.tree.map(
-            lambda h, a: jnp.where(state.is_av, a, h), self.hv, self.av
-        )
+        if car is None:
+            driver = jax.tree.map(
+                lambda h, a: jnp.where(state.is_av, a, h), self.hv, self.av
+            )
+        else:
+            driver = car_driver(car, active.shape)
         veh = ring_changer.RingVehicles(
             path=state.route, pos=state.pos, speed=state.speed, accel=state.accel,
             active=active, driver=driver, speed_factor=state.speed_factor,
@@ -280,7 +302,7 @@ class LaneChanger:
                 net, self.arrays, car, state.route, state.pos, state.speed,
                 active, self.dt,
             )  # fmt: skip
-        veh, memory = self.vehicles(state, request, hold, merge)
+        veh, memory = self.vehicles(state, request, hold, merge, car)
         if self.in_rounds:
             result, memory, _ = ring_rounds.change_lanes(
                 self.arrays, veh, memory, lc, self.dt

@@ -161,3 +161,33 @@ def test_a_batch_two_to_a_lane_takes_each_roundabouts_turns(episode, batch) -> N
     assert int(jnp.sum(want[0].direction != 0)) > 0
     for result in (got, jax.tree.map(lambda x: x[1], twice)):
         assert_same_numbers(result, want)
+
+
+def test_the_changer_drives_with_the_steps_car_following_numbers(episode) -> None:
+    """Given the step's per-vehicle numbers (`EnvParams.for_vehicles`, any
+    retuning included), the changer's drivers are those, as SUMO's LC2013
+    reads a vehicle's own (a TraCI ``setTau`` included): with a headway of
+    3 s its safety gaps refuse changes the vType's 1.35 s allows."""
+    env, params, (states, _, _) = episode
+    changer = env.lane_changer
+    lc = params.lane_change
+    loop = jax.jit(ring_turns.turns_of_vehicles, static_argnums=4)
+    slow = params.with_human(tau=jnp.float32(3.0))
+    moved, moved_slow = 0, 0
+    for t in range(STEPS - 200, STEPS, 8):
+        state = jax.tree.map(lambda x, t=t: x[t], states)
+        veh, memory = changer.vehicles(state, car=params.for_vehicles(state.is_av))
+        # the vType's numbers, as the changer read them before it took the step's
+        want, _ = changer.vehicles(state)
+        assert_same_numbers(veh.driver, want.driver)
+        veh_slow, _ = changer.vehicles(state, car=slow.for_vehicles(state.is_av))
+        np.testing.assert_allclose(np.asarray(veh_slow.driver.tau), 3.0)
+        moved += int(
+            jnp.sum(loop(changer.arrays, veh, memory, lc, changer.dt)[0].direction != 0)
+        )
+        moved_slow += int(
+            jnp.sum(
+                loop(changer.arrays, veh_slow, memory, lc, changer.dt)[0].direction != 0
+            )
+        )
+    assert moved_slow < moved
