@@ -24,6 +24,7 @@ from typing import Any
 import jax
 import numpy as np
 
+from jaxround.analysis.compare import mean_ci
 from jaxround.analysis.metrics import arrived_in_all, class_metrics, mean_over_runs
 from jaxround.analysis.saturation import saturation_report
 from jaxround.apps.drivers import (
@@ -136,6 +137,48 @@ def per_vehicle_stats(abs_err: np.ndarray) -> dict[str, float | None]:
     }
 
 
+#: The metrics whose error `seed_errors` gives schedule by schedule.
+SEED_COMPARED = ("mean_crossing_time_s", "co2_g_per_veh")
+
+
+def seed_errors(
+    jax_runs: Sequence[dict[str, Any]], sumo_runs: Sequence[dict[str, Any]]
+) -> dict[str, dict[str, Any]]:
+    """The signed relative error JAX / SUMO - 1 of each schedule, and their
+    mean with a 95% t-interval over the schedules (None for one schedule).
+
+    A schedule near capacity varies from run to run by more than the step
+    differs from SUMO: the interval says what a parity row's seeds resolve.
+
+    Args:
+        jax_runs, sumo_runs: `class_metrics` of each schedule, in the same order.
+
+    Returns:
+        ``{metric: {"per_seed": [...], "mean": float, "ci95": [low, high]}}``
+        for `SEED_COMPARED`; per-seed entries None where a run has no value.
+    """
+    out: dict[str, dict[str, Any]] = {}
+    for key in SEED_COMPARED:
+        errors = [
+            _signed_error(j["all"][key], s["all"][key])
+            for j, s in zip(jax_runs, sumo_runs, strict=True)
+        ]
+        known = np.array([e for e in errors if e is not None])
+        interval = mean_ci(known)
+        out[key] = {
+            "per_seed": errors,
+            "mean": float(known.mean()) if known.size else None,
+            "ci95": None if interval is None else [interval[1], interval[2]],
+        }
+    return out
+
+
+def _signed_error(a: float | None, b: float | None) -> float | None:
+    if a is None or b is None or b == 0 or not math.isfinite(a) or not math.isfinite(b):
+        return None
+    return float(a / b - 1.0)
+
+
 def relative_error(a: float | None, b: float | None) -> float | None:
     if a is None or b is None or b == 0:
         return None
@@ -203,15 +246,14 @@ def parity_report(
         arrived_in_all([a, b]) for a, b in zip(jax_records, sumo_records, strict=True)
     ]
 
-    def means(records: list[Any]) -> dict[str, Any]:
-        return mean_over_runs(
-            [
-                class_metrics(r, horizon, compared=c)
-                for r, c in zip(records, compared, strict=True)
-            ]
-        )
+    def per_run(records: list[Any]) -> list[dict[str, Any]]:
+        return [
+            class_metrics(r, horizon, compared=c)
+            for r, c in zip(records, compared, strict=True)
+        ]
 
-    sumo_m, jax_m = means(sumo_records), means(jax_records)
+    sumo_runs_m, jax_runs_m = per_run(sumo_records), per_run(jax_records)
+    sumo_m, jax_m = mean_over_runs(sumo_runs_m), mean_over_runs(jax_runs_m)
     errors = [
         np.abs(a.crossing_time_s[c] - b.crossing_time_s[c])
         for a, b, c in zip(sumo_records, jax_records, compared, strict=True)
@@ -238,6 +280,7 @@ def parity_report(
         "rel_err": {
             k: relative_error(jax_m["all"][k], sumo_m["all"][k]) for k in COMPARED
         },
+        "rel_err_by_seed": seed_errors(jax_runs_m, sumo_runs_m),
         **per_vehicle_stats(per_vehicle),
         "cap_s": cap_s,
         "jax_not_arrived": sum(left_inside(r) for r in jax_records),

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -194,6 +195,11 @@ def test_parity_names_runs_with_vehicles_outside_at_the_cap(
     assert report["n_compared"] == 2 * jax_all["n_compared"]
     assert jax_all["n_compared"] <= min(jax_all["n_arrived"], sumo_all["n_arrived"])
     assert jax_all["n_compared"] < jax_all["n_vehicles"]
+    # the errors schedule by schedule, with their mean and interval
+    by_seed = report["rel_err_by_seed"]["mean_crossing_time_s"]
+    assert len(by_seed["per_seed"]) == 2
+    assert by_seed["mean"] == pytest.approx(np.mean(by_seed["per_seed"]))
+    assert by_seed["ci95"][0] <= by_seed["mean"] <= by_seed["ci95"][1]
     # past capacity: entry rates per leg and quantiles, with intervals
     rates = report["saturation"]["entry_rate_veh_per_h"]
     assert len(rates["jax"]["mean"]) == 4 and len(rates["jax"]["per_seed"]) == 2

@@ -66,3 +66,46 @@ def test_paired_difference_refuses_unpaired_runs() -> None:
         paired_difference([a], [a, a])
     with pytest.raises(ValueError, match="other vehicles"):
         paired_difference([a], [records([1.0], [1.0], [False])])
+
+
+def test_parity_errors_schedule_by_schedule() -> None:
+    # JAX 10% slower than SUMO on one schedule and 10% faster on the other:
+    # the mean is 0 and the 95% interval t95(1) * sd / sqrt(2) wide each side
+    from jaxround.apps.parity import seed_errors
+
+    def metrics(crossing: float, co2: float | None) -> dict:
+        return {"all": {"mean_crossing_time_s": crossing, "co2_g_per_veh": co2}}
+
+    jax_runs = [metrics(44.0, 80.0), metrics(36.0, None)]
+    sumo_runs = [metrics(40.0, 80.0), metrics(40.0, 70.0)]
+    out = seed_errors(jax_runs, sumo_runs)
+    crossing = out["mean_crossing_time_s"]
+    assert crossing["per_seed"] == pytest.approx([0.1, -0.1])
+    assert crossing["mean"] == pytest.approx(0.0, abs=1e-12)
+    half = t95(1) * np.std([0.1, -0.1], ddof=1) / np.sqrt(2)
+    assert crossing["ci95"] == pytest.approx([-half, half])
+    # a run without a value is left out of the mean, and one value has no interval
+    co2 = out["co2_g_per_veh"]
+    assert co2["per_seed"] == [0.0, None]
+    assert co2["mean"] == 0.0 and co2["ci95"] is None
+
+
+def test_parity_text_gives_the_errors_by_schedule(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from jaxround.apps.cli.simulate import print_seed_errors
+
+    report = {
+        "seeds": [0, 1],
+        "rel_err_by_seed": {
+            "mean_crossing_time_s": {
+                "per_seed": [0.1, -0.1], "mean": 0.0, "ci95": [-0.9, 0.9],
+            },
+            "co2_g_per_veh": {"per_seed": [0.0, None], "mean": 0.0, "ci95": None},
+        },
+    }  # fmt: skip
+    print_seed_errors(report)
+    out = capsys.readouterr().out
+    assert "crossing time error by schedule (%): +10.0, -10.0; mean +0.00%" in out
+    assert "over the 2 schedules [-90.00, +90.00]" in out
+    assert "CO2" not in out  # one schedule's value: no interval to give

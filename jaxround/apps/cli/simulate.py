@@ -82,6 +82,25 @@ def cmd_sumo(args: argparse.Namespace) -> None:
     print(markdown_table(absolute_columns(summary), rows["absolute"]))
 
 
+def print_seed_errors(report: dict) -> None:
+    """The parity report's errors schedule by schedule, with their interval."""
+    by_seed = report["rel_err_by_seed"]
+    n = len(report["seeds"])
+    for label, key in (
+        ("crossing time", "mean_crossing_time_s"),
+        ("CO2", "co2_g_per_veh"),
+    ):
+        d = by_seed[key]
+        if d["ci95"] is None:
+            continue
+        each = ", ".join("-" if e is None else f"{100 * e:+.1f}" for e in d["per_seed"])
+        low, high = (100 * x for x in d["ci95"])
+        print(
+            f"\n{label} error by schedule (%): {each}; mean {100 * d['mean']:+.2f}%,"
+            f" 95% interval over the {n} schedules [{low:+.2f}, {high:+.2f}]"
+        )
+
+
 def cmd_parity(args: argparse.Namespace) -> None:
     from jaxround.apps.drivers import parse_av_numbers, with_av_numbers
     from jaxround.apps.parity import parity_report
@@ -137,6 +156,7 @@ def cmd_parity(args: argparse.Namespace) -> None:
                 f"{100 * shares[1]:.1f}% | "
                 f"{report['inner_ring_share_diff_points']:.1f} points |"
             )
+    print_seed_errors(report)
     print(
         f"\ncollisions: JAX {report['jax_collisions']}, SUMO "
         f"{report['sumo_collisions']}; SUMO teleports {report['sumo_teleports']}"
