@@ -9,7 +9,9 @@ SUMO 1.28 runs the scenario and its lane changes are recorded step by step
 the same changes as `jaxround.lanes.ring_turns`) then decides the same
 step from SUMO's state before those changes (the changed vehicles put back
 on their lanes, the vehicles inserted in the step left out), carrying its
-own LC2013 memory from step to step. Its changes are compared with SUMO's:
+own LC2013 memory from step to step and taking the edges in the order SUMO
+did (its list of active lanes followed from the records, `RecordedOrder`;
+`jaxround.lanes.active_lanes`). Its changes are compared with SUMO's:
 the same vehicle, step and direction. Speeds and positions always come from
 SUMO (the replay is open loop), so the figures measure the lane-change
 decisions alone. With ``--policy`` SUMO's AVs get TraCI lane requests
@@ -36,6 +38,7 @@ from jaxround.apps.ring_lane_record import StepRecord, record_sumo, scripted_pol
 from jaxround.envs.lane_changes import changer_arrays, changer_tables, driver_numbers
 from jaxround.lanes import actions as lca
 from jaxround.lanes import ring_changer, ring_rounds
+from jaxround.lanes.active_lanes import TurnOrder, edge_order, join
 from jaxround.lanes.memory import prepare_step
 from jaxround.lanes.params import LaneChangeParams
 from jaxround.lanes.ring_tables import RingLanes
@@ -106,6 +109,57 @@ class SlotBook:
         return veh, prepare_step(memory), slots
 
 
+@dataclass
+class RecordedOrder:
+    """SUMO's list of active lanes (`jaxround.lanes.active_lanes`) followed
+    from the records, step by step: the changer takes the edges in the
+    order SUMO did."""
+
+    tables: RingLanes
+    order: TurnOrder
+    stamp: jax.Array
+    after: dict[str, int] = field(default_factory=dict)
+
+    def lane_of(self, path: int, pos: float) -> int:
+        starts = np.nan_to_num(self.tables.paths.path_lane_start[path], nan=np.inf)
+        k = int(np.searchsorted(starts, pos, side="right") - 1)
+        return int(self.tables.paths.path_lanes[path][k])
+
+    def before_changes(self, rec: StepRecord) -> jax.Array:
+        """This step's `RingArrays.lane_order`, from the vehicles after the
+        move (``rec``) and where they were after the last step."""
+        paths, n = self.tables.paths, len(self.tables.paths.lane_ids)
+        occupied_before, kept, occupied = (np.zeros(n, bool) for _ in range(3))
+        now: dict[str, int] = {}
+        for i, vid in enumerate(rec.ids):
+            if rec.new[i]:
+                continue
+            now[vid] = lane = self.lane_of(int(rec.path[i]), float(rec.pos[i]))
+            occupied[lane] = True
+            if vid in self.after:
+                occupied_before[self.after[vid]] = True
+                kept[lane] |= self.after[vid] == lane
+        stamp = join(
+            self.stamp, occupied_before & (self.stamp == 0), self.order.file_rank
+        )
+        stamp = jnp.where(kept, stamp, 0)
+        self.stamp = join(stamp, occupied & (stamp == 0), self.order.id_rank)
+        lane_order = edge_order(self.stamp, self.order.same_edge)
+        # after the changes: the lanes they occupied join; inserted vehicles
+        # count from the next step on
+        self.after, occupied_after = {}, np.zeros(n, bool)
+        for i, vid in enumerate(rec.ids):
+            lane = now.get(vid, self.lane_of(int(rec.path[i]), float(rec.pos[i])))
+            change = int(rec.change[i])
+            if change:
+                lane = int((paths.lane_left if change > 0 else paths.lane_right)[lane])
+            self.after[vid] = lane
+            occupied_after[lane] |= not rec.new[i]
+        push = lane_order * 4 + jnp.asarray(paths.lane_index)
+        self.stamp = join(self.stamp, occupied_after & (self.stamp == 0), push)
+        return lane_order
+
+
 def tables_for(cfg: ScenarioConfig) -> RingLanes:
     """The changer's tables of a config's network, for its human drivers."""
     return changer_tables(cfg, network_file(cfg))
@@ -135,9 +189,14 @@ def replay(
     rounds: Counter = Counter()
     mismatches: list[dict[str, Any]] = []
     jax_only: set[tuple[str, int]] = set()
+    order = TurnOrder.of(network_file(cfg), tables.paths.lane_ids, net)
+    recorded = RecordedOrder(
+        tables, order, jnp.zeros(len(tables.paths.lane_ids), jnp.int32)
+    )
     for rec in tqdm(steps, desc="JAX", leave=False):
         veh, memory, slots = book.vehicles(rec, memory)
-        result, memory, n_rounds = _CHANGE(net, veh, memory, lc, dt)
+        ordered = net._replace(lane_order=recorded.before_changes(rec))
+        result, memory, n_rounds = _CHANGE(ordered, veh, memory, lc, dt)
         rounds[int(n_rounds)] += 1
         jax_dir = np.asarray(result.direction)[slots]
         sight = jax.tree.map(np.asarray, result.sight)

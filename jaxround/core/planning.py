@@ -184,8 +184,62 @@ def lane_limits(
             speed, to_end - STOP_OFFSET, start.v_lane, vtype=car.idm, dt=dt,
             n_substeps=step.n_substeps, action_step=step.action_step,
         )  # fmt: skip
-        v_free = jnp.where(net.route_arrives[route], v_free, jnp.minimum(v_free, v_end))
+        stops = ~net.route_arrives[route] & sees_route_end(
+            net, car, veh, start, step=step
+        )
+        v_free = jnp.where(stops, jnp.minimum(v_free, v_end), v_free)
     return LaneLimits(per_lane, later, jnp.min(per_lane, axis=1), v_free)
+
+
+#: SUMO's CRLL_LOOK_AHEAD (MSVehicle.cpp): vehicle lengths of normal lanes a
+#: vehicle looks ahead past its braking distance.
+LOOK_AHEAD_LENGTHS = 5.0
+
+
+def sees_route_end(
+    net: NetArrays,
+    car: CarFollowing,
+    veh: Vehicles,
+    start: StartSpeeds,
+    *,
+    step: Stepping,
+) -> jax.Array:
+    """bool (M,): SUMO's look-ahead reaches the route's last lane, whose end
+    is then a dead end to stop at. ``MSVehicle::planMoveInternal`` walks the
+    lanes ahead link by link and stops after a link once it has seen past
+    its braking distance (``dist``), passed a link onto a normal lane, and
+    seen more normal metres than ``max(5 * length, length + internal
+    metres)`` (the current lane's rest counted as internal if it is one):
+    on a junction's internal lane the walk stops sooner than just before it.
+    (A planned speed of 0 or a withdrawn request, which end the walk too,
+    are left out.)"""
+    route, pos = veh.route, veh.pos
+    starts = net.route_lane_start[route]  # (M, K)
+    lanes = net.route_lanes[route]  # (M, K)
+    n_k = starts.shape[1]
+    k = start.lane_index
+    nxt = jnp.minimum(k + 1, n_k - 1)[:, None]
+    pick = lambda x: jnp.take_along_axis(x, nxt, axis=1)  # noqa: E731  (M, 1)
+    ahead = (jnp.arange(n_k)[None, :] > k[:, None]) & (lanes >= 0)
+    own_internal = net.lane_internal[jnp.take_along_axis(lanes, k[:, None], axis=1)]
+    rest = pick(starts) - pos[:, None]  # the current lane's rest (M, 1)
+    normal_seen = net.normal_cum[route] - pick(net.normal_cum[route])  # (M, K)
+    internal_seen = net.internal_cum[route] - pick(net.internal_cum[route])
+    internal_seen = internal_seen + jnp.where(own_internal, rest, 0.0)
+    onto_normal = ~net.lane_internal[jnp.maximum(lanes, 0)] | (normal_seen > 0)
+    max_v = jnp.minimum(veh.speed + car.accel * step.dt, car.max_speed)
+    dist = max_v * step.dt + brake_gap(max_v, car.decel, car.tau, step.dt)
+    length = car.length
+    stops_walk = (
+        ahead
+        & (starts - pos[:, None] > dist[:, None])
+        & onto_normal
+        & (
+            normal_seen
+            > jnp.maximum(LOOK_AHEAD_LENGTHS * length, length + internal_seen)
+        )
+    )
+    return ~jnp.any(stops_walk, axis=1)
 
 
 def link_leader_speed(

@@ -36,7 +36,8 @@ from jaxround.core.network import CompiledNetwork
 from jaxround.core.params import CarFollowing
 from jaxround.core.state import EnvState
 from jaxround.envs.lane_view import lane_request
-from jaxround.lanes import ring_batches, ring_changer, ring_rounds
+from jaxround.lanes import active_lanes, ring_batches, ring_changer, ring_rounds
+from jaxround.lanes.active_lanes import TurnOrder
 from jaxround.lanes.best_lanes import LookAheadDriver
 from jaxround.lanes.entry_hold import (
     held_by_approaching,
@@ -73,18 +74,23 @@ class LaneState:
         conflict_clock: float (M,) when each front entered the internal lane
             that leaves its junction (+inf elsewhere), kept only where
             internal lanes cross (`jaxround.core.crossing_leaders`).
+        lane_stamp: int32 (L,) each lane's place in SUMO's list of active
+            lanes, which orders the edges' turns (`jaxround.lanes.active_lanes`;
+            0: not in it).
     """
 
     memory: Memory
     changes: jax.Array
     lane_seconds: jax.Array
     conflict_clock: jax.Array
+    lane_stamp: jax.Array
 
     @classmethod
     def zeros(cls, m: int, n: int, n_lanes: int) -> LaneState:
         return cls(
             Memory.zeros(m), jnp.zeros(n, jnp.int32),
             jnp.zeros(n_lanes, jnp.float32), jnp.full(m, jnp.inf, jnp.float32),
+            jnp.zeros(n_lanes, jnp.int32),
         )  # fmt: skip
 
 
@@ -179,6 +185,7 @@ class LaneChanger:
         self.in_rounds = in_rounds
         self.hold_entries = hold_entries
         self.merge_leaders = merge_leaders
+        self.turn_order = TurnOrder.of(net_file, self.paths.lane_ids, self.arrays)
 
     def request(
         self, state: EnvState, lane_action: jax.Array, agent: jax.Array
@@ -303,14 +310,13 @@ class LaneChanger:
                 active, self.dt,
             )  # fmt: skip
         veh, memory = self.vehicles(state, request, hold, merge, car)
+        stamp, arrays = self.turn_order.before_changes(state, lanes.lane_stamp, self.dt)
         if self.in_rounds:
             result, memory, _ = ring_rounds.change_lanes(
-                self.arrays, veh, memory, lc, self.dt
+                arrays, veh, memory, lc, self.dt
             )
         else:
-            result, memory = ring_batches.change_lanes(
-                self.arrays, veh, memory, lc, self.dt
-            )
+            result, memory = ring_batches.change_lanes(arrays, veh, memory, lc, self.dt)
         changed = active & (result.direction != 0)
         n = lanes.changes.shape[0]
         vid = jnp.where(changed, state.vid, n)  # out of range: dropped
@@ -324,9 +330,13 @@ class LaneChanger:
             t = (state.step - 1).astype(jnp.float32) * self.dt  # the step's start
             clock = conflict_clock(net, route, pos, active, clock, t)
         changes = lanes.changes.at[vid].add(1, mode="drop")
+        stamp = active_lanes.after_changes(
+            self.arrays, stamp, arrays.lane_order, route, pos, active
+        )
         return state.replace(
-            route=route, pos=pos, lanes=LaneState(memory, changes, seconds, clock)
-        ), jnp.where(active, result.direction, 0)
+            route=route, pos=pos,
+            lanes=LaneState(memory, changes, seconds, clock, stamp),
+        ), jnp.where(active, result.direction, 0)  # fmt: skip
 
     @staticmethod
     def junction_order(
