@@ -113,6 +113,7 @@ SLOW_FILES = (
     "tests/unit/test_capacity.py",  # 45
     "tests/sumo/test_entry_hold_sumo.py",  # 45
     "tests/e2e/test_cli.py",  # 35
+    "tests/sumo/test_turn_order.py",  # 35: 31 s of two legs, step by step
     "tests/sumo/test_lane_requests.py",  # 35: three SUMO runs and replays
     "tests/unit/test_demand_gradient.py",  # 35
     "tests/sumo/test_conflicts_sumo.py",  # 35

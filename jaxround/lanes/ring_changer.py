@@ -5,8 +5,8 @@ within an edge the vehicles decide front to back (`jaxround.lanes.changer`
 does one straight road). Here every vehicle is on a lane path
 (`jaxround.lanes.paths`) and the edges are many: the turns
 (`jaxround.lanes.ring_turns`, one loop) take the vehicles edge by edge (in
-lane-table order, `context`; SUMO takes them in the order its lanes became
-occupied, which only matters where a neighbour is found on another edge),
+the order of `RingArrays.lane_order`, `context`: the step passes SUMO's,
+`jaxround.lanes.active_lanes`; the table's own is lane-table order),
 front to back within an edge, ties to the right lane, empty slots last.
 This module is one turn (`turn`) and what the step makes of the turns
 (`changes`).
@@ -191,10 +191,11 @@ class Outcome(NamedTuple):
 def context(
     net: RingArrays, veh: RingVehicles, lc: LaneChangeParams, dt: float
 ) -> Context:
-    """The step's `Context`; the turns go edge by edge in lane-table order,
-    front to back within an edge, ties to the right lane; the vehicles on
-    an edge without a changer come after them (their turns change nothing:
-    SUMO has no changer there), empty slots last."""
+    """The step's `Context`; the turns go edge by edge in the order of
+    ``net.lane_order`` (`jaxround.lanes.active_lanes`), front to back
+    within an edge, ties to the right lane; the vehicles on an edge without
+    a changer come after them (their turns change nothing: SUMO has no
+    changer there), empty slots last."""
     k, lane, on_lane = locate(net, veh.path, veh.pos)
     decides = veh.active & (net.change_path[veh.path, k] >= 0).any(axis=-1)
     # (~active, ~decides, lane order) as one key: a sort of three keys, not five

@@ -28,21 +28,26 @@ from jaxround.analysis.episode_movie import rollout_states
 from jaxround.core.geometry import locate
 from jaxround.envs.roundabout import make
 from jaxround.scenario.config import config_from_dict
-from jaxround.scenario.schedule import make_schedule
+from jaxround.scenario.schedule import Schedule, make_schedule
 from sumo_export.runner import run_schedule
 from tests.conftest import builtin_dict
 
 pytestmark = pytest.mark.sumo
 
-#: Steps compared: the first 31 s (then a crossing's link leader at leg 4,
-#: which the step leaves out by default, moves one vehicle by 0.07 m/s).
+#: Steps compared: the first 31 s (then a vehicle on a left entry's crossing
+#: 45 m ahead of one from leg 4, a link leader the step leaves out by
+#: default, slows it in SUMO by 0.07 m/s).
 STEPS = 62
 
 
-def two_legs():
+#: The schedule's vehicles that depart within the steps compared.
+FIRST = 24
+
+
+def two_legs(n_vehicles: int):
     d = builtin_dict("held_out/five_leg_two_lane")
     d["demand"].update(
-        n_vehicles=1400,
+        n_vehicles=n_vehicles,
         origin_share=[0.5, 0.0, 0.0, 0.0, 0.5],
         od=[
             [0.0, 0.25, 0.25, 0.25, 0.25],
@@ -52,13 +57,21 @@ def two_legs():
             [0.0, 0.34, 0.33, 0.33, 0.0],
         ],
     )
-    d["simulation"]["max_vehicles"] = 48
+    d["simulation"]["max_vehicles"] = 32
     return config_from_dict(d)
 
 
 def test_a_two_lane_entry_against_ring_traffic_steps_as_sumo_does() -> None:
-    cfg = two_legs()
-    schedule = make_schedule(cfg, seed=0)
+    # 1,400 vehicles in the hour; the first FIRST of them (the next departs
+    # after the steps compared), run alone in both simulators
+    full = make_schedule(two_legs(1400), seed=0)
+    assert full.depart_s[FIRST] > STEPS * 0.5
+    cfg = two_legs(FIRST)
+    schedule = Schedule(
+        depart_s=full.depart_s[:FIRST], origin=full.origin[:FIRST],
+        destination=full.destination[:FIRST], speed_factor=full.speed_factor[:FIRST],
+        av_rank=np.arange(FIRST, dtype=np.int32), penetration=0.0,
+    )  # fmt: skip
     sumo: dict[float, dict[str, tuple[str, float, float]]] = {}
 
     def record(libsumo, t: float) -> None:
