@@ -38,7 +38,7 @@ from jaxround.apps.ring_lane_record import StepRecord, record_sumo, scripted_pol
 from jaxround.envs.lane_changes import changer_arrays, changer_tables, driver_numbers
 from jaxround.lanes import actions as lca
 from jaxround.lanes import ring_changer, ring_rounds
-from jaxround.lanes.active_lanes import TurnOrder, edge_order, join
+from jaxround.lanes.active_lanes import TurnOrder, after_changes
 from jaxround.lanes.memory import prepare_step
 from jaxround.lanes.params import LaneChangeParams
 from jaxround.lanes.ring_tables import RingLanes
@@ -112,52 +112,34 @@ class SlotBook:
 @dataclass
 class RecordedOrder:
     """SUMO's list of active lanes (`jaxround.lanes.active_lanes`) followed
-    from the records, step by step: the changer takes the edges in the
-    order SUMO did."""
+    from the records, step by step, as the step follows its own: the
+    changer takes the edges in the order SUMO did."""
 
-    tables: RingLanes
+    net: ring_changer.RingArrays
     order: TurnOrder
+    dt: float
     stamp: jax.Array
-    after: dict[str, int] = field(default_factory=dict)
 
-    def lane_of(self, path: int, pos: float) -> int:
-        starts = np.nan_to_num(self.tables.paths.path_lane_start[path], nan=np.inf)
-        k = int(np.searchsorted(starts, pos, side="right") - 1)
-        return int(self.tables.paths.path_lanes[path][k])
-
-    def before_changes(self, rec: StepRecord) -> jax.Array:
-        """This step's `RingArrays.lane_order`, from the vehicles after the
-        move (``rec``) and where they were after the last step."""
-        paths, n = self.tables.paths, len(self.tables.paths.lane_ids)
-        occupied_before, kept, occupied = (np.zeros(n, bool) for _ in range(3))
-        now: dict[str, int] = {}
-        for i, vid in enumerate(rec.ids):
-            if rec.new[i]:
-                continue
-            now[vid] = lane = self.lane_of(int(rec.path[i]), float(rec.pos[i]))
-            occupied[lane] = True
-            if vid in self.after:
-                occupied_before[self.after[vid]] = True
-                kept[lane] |= self.after[vid] == lane
-        stamp = join(
-            self.stamp, occupied_before & (self.stamp == 0), self.order.file_rank
+    def before_changes(
+        self, rec: StepRecord, veh: ring_changer.RingVehicles, slots: np.ndarray
+    ) -> jax.Array:
+        """This step's `RingArrays.lane_order` from SUMO's vehicles after the
+        move (``veh``, the recorded ones in ``slots``); the stamps then
+        take SUMO's changes of the step (``rec.change``)."""
+        self.stamp, arrays = self.order.before_changes(
+            self.stamp, path=veh.path, pos=veh.pos, speed=veh.speed,
+            active=veh.active, dt=self.dt,
+        )  # fmt: skip
+        _, lane, _ = ring_changer.locate(self.net, veh.path, veh.pos)
+        lane = np.array(lane)
+        change = np.zeros(lane.shape, np.int32)
+        change[slots] = rec.change
+        beside = np.asarray(self.net.lane_side)[lane, (change > 0).astype(int)]
+        lane = np.where(change != 0, beside, lane)
+        self.stamp = after_changes(
+            self.net, self.stamp, arrays.lane_order, jnp.asarray(lane), veh.active
         )
-        stamp = jnp.where(kept, stamp, 0)
-        self.stamp = join(stamp, occupied & (stamp == 0), self.order.id_rank)
-        lane_order = edge_order(self.stamp, self.order.same_edge)
-        # after the changes: the lanes they occupied join; inserted vehicles
-        # count from the next step on
-        self.after, occupied_after = {}, np.zeros(n, bool)
-        for i, vid in enumerate(rec.ids):
-            lane = now.get(vid, self.lane_of(int(rec.path[i]), float(rec.pos[i])))
-            change = int(rec.change[i])
-            if change:
-                lane = int((paths.lane_left if change > 0 else paths.lane_right)[lane])
-            self.after[vid] = lane
-            occupied_after[lane] |= not rec.new[i]
-        push = lane_order * 4 + jnp.asarray(paths.lane_index)
-        self.stamp = join(self.stamp, occupied_after & (self.stamp == 0), push)
-        return lane_order
+        return arrays.lane_order
 
 
 def tables_for(cfg: ScenarioConfig) -> RingLanes:
@@ -191,11 +173,11 @@ def replay(
     jax_only: set[tuple[str, int]] = set()
     order = TurnOrder.of(network_file(cfg), tables.paths.lane_ids, net)
     recorded = RecordedOrder(
-        tables, order, jnp.zeros(len(tables.paths.lane_ids), jnp.int32)
+        net, order, dt, jnp.zeros(len(tables.paths.lane_ids), jnp.int32)
     )
     for rec in tqdm(steps, desc="JAX", leave=False):
         veh, memory, slots = book.vehicles(rec, memory)
-        ordered = net._replace(lane_order=recorded.before_changes(rec))
+        ordered = net._replace(lane_order=recorded.before_changes(rec, veh, slots))
         result, memory, n_rounds = _CHANGE(ordered, veh, memory, lc, dt)
         rounds[int(n_rounds)] += 1
         jax_dir = np.asarray(result.direction)[slots]

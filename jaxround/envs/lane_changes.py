@@ -310,7 +310,10 @@ class LaneChanger:
                 active, self.dt,
             )  # fmt: skip
         veh, memory = self.vehicles(state, request, hold, merge, car)
-        stamp, arrays = self.turn_order.before_changes(state, lanes.lane_stamp, self.dt)
+        stamp, arrays = self.turn_order.before_changes(
+            lanes.lane_stamp, path=state.route, pos=state.pos, speed=state.speed,
+            active=active, dt=self.dt,
+        )  # fmt: skip
         if self.in_rounds:
             result, memory, _ = ring_rounds.change_lanes(
                 arrays, veh, memory, lc, self.dt
@@ -331,7 +334,7 @@ class LaneChanger:
             clock = conflict_clock(net, route, pos, active, clock, t)
         changes = lanes.changes.at[vid].add(1, mode="drop")
         stamp = active_lanes.after_changes(
-            self.arrays, stamp, arrays.lane_order, route, pos, active
+            self.arrays, stamp, arrays.lane_order, result.lane, active
         )
         return state.replace(
             route=route, pos=pos,

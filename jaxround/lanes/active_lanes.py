@@ -32,7 +32,7 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -69,14 +69,21 @@ class TurnOrder(NamedTuple):
         )
 
     def before_changes(
-        self, state: Any, stamp: jax.Array, dt: float
+        self,
+        stamp: jax.Array,
+        *,
+        path: jax.Array,
+        pos: jax.Array,
+        speed: jax.Array,
+        active: jax.Array,
+        dt: float,
     ) -> tuple[jax.Array, RingArrays]:
         """(stamps, arrays): the stamps when the changer starts (`after_move`)
-        and the changer's arrays with this step's `edge_order`, from
-        ``state`` after the move (an `EnvState`)."""
+        and the changer's arrays with this step's `edge_order`, from the
+        vehicles after the move ((M,) each)."""
         stamp = after_move(
-            self.arrays, stamp, state.route, state.pos, state.speed, state.active,
-            dt, id_rank=self.id_rank, file_rank=self.file_rank,
+            self.arrays, stamp, path, pos, speed, active, dt,
+            id_rank=self.id_rank, file_rank=self.file_rank,
         )  # fmt: skip
         order = edge_order(stamp, self.same_edge)
         return stamp, self.arrays._replace(lane_order=order)
@@ -140,13 +147,12 @@ def after_changes(
     net: RingArrays,
     stamp: jax.Array,
     order: jax.Array,
-    path: jax.Array,
-    pos: jax.Array,
+    lane: jax.Array,
     active: jax.Array,
 ) -> jax.Array:
-    """The stamps after the lane changes (vehicles on their new paths): a
-    lane with vehicles and no stamp joins, in the edges' turn order
+    """The stamps after the lane changes, from each slot's lane after them
+    (M,): a lane with vehicles and no stamp joins, in the edges' turn order
     (``order``, `edge_order`), lanes by index within an edge."""
-    _, count = lane_counts(net, path, pos, active)
+    count = jnp.zeros(net.lane_length.shape[0], jnp.int32).at[lane].add(active)
     push_rank = order * 4 + net.lane_index
     return join(stamp, (count > 0) & (stamp == 0), push_rank)
