@@ -26,7 +26,8 @@ conflict area, as SUMO 1.28 does:
   the vehicle may still reach the conflict area as the foe leaves it (the
   speed ``v2`` of ``adaptToJunctionLeader``, at most the speed that stops
   minGap before the area); before the junction the vehicle may always drive
-  up to its link (``lastLink->myVLinkWait``).
+  up to its link (``lastLink->myVLinkWait``: 1 m before a major link, 0.1 m
+  before a minor one, `jaxround.core.insertion.link_stop_distance`).
 
 Not ported: the sagitta of curved links (``myRadius``: 0 here), foes that
 will not pass (every foe on an internal lane does here), the bicycle and
@@ -44,7 +45,7 @@ import jax.numpy as jnp
 
 from jaxround.core import idm
 from jaxround.core.geometry import NetArrays, locate
-from jaxround.core.insertion import STOP_OFFSET
+from jaxround.core.insertion import link_stop_distance
 from jaxround.core.params import CarFollowing
 
 #: SUMO's ``POSITION_EPS`` (m).
@@ -145,8 +146,11 @@ def crossing_leader_speed(
     v_follow = idm.idm_follow_speed(
         v, speed[None, :], gap + min_gap, v_lane[:, None], **stepping
     )
+    # the stop before the crossing lane's own link (``myVLinkWait``): 1 m
+    # before the ring's through link, 0.1 m before an entry's
+    link_stop = link_stop_distance(to_link, speed, car.decel, dt, ~cx.minor[row])
     v_stop_link = idm.idm_stop_speed(
-        speed, to_link - STOP_OFFSET, v_lane, vtype=car.idm, dt=dt,
+        speed, link_stop, v_lane, vtype=car.idm, dt=dt,
         n_substeps=n_substeps, action_step=action_step,
     )  # fmt: skip
     v_stop_link = jnp.where(to_link > 0, v_stop_link, 0.0)

@@ -15,6 +15,27 @@ from jaxround.core.params import CarFollowing
 
 #: A blocked vehicle stops this far before its stop line (m).
 STOP_OFFSET = 0.1
+#: SUMO's DIST_TO_STOPLINE_EXPECT_PRIORITY (MSVehicle.cpp): where a vehicle
+#: plans to stop before a major link (the jmStoplineGap default, m).
+MAJOR_STOP_OFFSET = 1.0
+
+
+def link_stop_distance(
+    seen: jax.Array, speed: jax.Array, decel: jax.Array, dt: float, major: jax.Array
+) -> jax.Array:
+    """Where a vehicle plans to stop before a link ``seen`` m ahead, float
+    (M,): ``MSVehicle::planMoveInternal``'s ``seen - laneStopOffset``, 1 m
+    before a major link (``min(1, seen - brakeGap)`` where it can brake
+    before it), ``POSITION_EPS`` before a minor one, and at least 0. All (M,)
+    but ``dt``; ``major`` bool."""
+    brake_dist = brake_gap(speed, decel, 0.0, dt)
+    offset = jnp.where(
+        seen >= brake_dist,
+        jnp.minimum(MAJOR_STOP_OFFSET, seen - brake_dist),
+        MAJOR_STOP_OFFSET,
+    )
+    offset = jnp.where(major, offset, 0.0)
+    return jnp.maximum(seen - jnp.maximum(offset, STOP_OFFSET), 0.0)
 
 
 def insertion_speed(

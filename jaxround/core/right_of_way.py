@@ -15,7 +15,7 @@ import jax.numpy as jnp
 
 from jaxround.core import idm
 from jaxround.core.geometry import NetArrays
-from jaxround.core.insertion import STOP_OFFSET
+from jaxround.core.insertion import link_stop_distance
 from jaxround.core.junction import (
     Approach,
     brake_gap,
@@ -255,11 +255,6 @@ def entry_test(
     return blocked_w * line.before_line, ego
 
 
-#: SUMO's DIST_TO_STOPLINE_EXPECT_PRIORITY (MSVehicle.cpp): where a vehicle
-#: plans to stop before a major link (the jmStoplineGap default, m).
-MAJOR_STOP_OFFSET = 1.0
-
-
 def next_link_wait(
     net: NetArrays,
     car: CarFollowing,
@@ -284,13 +279,7 @@ def next_link_wait(
     k_next = net.next_link_index[route]  # (M,)
     link_at = net.next_link_offset[route]
     seen = link_at - pos
-    brake_dist = brake_gap(speed, car.decel, 0.0, dt)
-    offset = jnp.where(
-        seen >= brake_dist,
-        jnp.minimum(MAJOR_STOP_OFFSET, seen - brake_dist),
-        MAJOR_STOP_OFFSET,
-    )
-    stop_dist = jnp.maximum(seen - jnp.maximum(offset, STOP_OFFSET), 0.0)
+    stop_dist = link_stop_distance(seen, speed, car.decel, dt, major=True)
     v_stop = idm.idm_stop_speed(
         speed, stop_dist, start.v_lane, vtype=car.idm, dt=dt,
         n_substeps=step.n_substeps, action_step=step.action_step,
