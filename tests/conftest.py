@@ -101,6 +101,7 @@ SLOW_FILES = (
     "tests/sumo/test_drivers.py",  # 80
     "tests/unit/test_ppo.py",  # 75
     "tests/sumo/test_env.py",  # 65
+    "tests/sumo/test_turn_order.py",  # 65: 31 s and 36 s of two legs, step by step
     "tests/e2e/test_search_cli.py",  # 65
     "tests/e2e/test_distributed_train.py",  # 60
     "tests/e2e/test_train_cli.py",  # 55
@@ -113,7 +114,6 @@ SLOW_FILES = (
     "tests/unit/test_capacity.py",  # 45
     "tests/sumo/test_entry_hold_sumo.py",  # 45
     "tests/e2e/test_cli.py",  # 35
-    "tests/sumo/test_turn_order.py",  # 35: 31 s of two legs, step by step
     "tests/sumo/test_lane_requests.py",  # 35: three SUMO runs and replays
     "tests/unit/test_demand_gradient.py",  # 35
     "tests/sumo/test_conflicts_sumo.py",  # 35

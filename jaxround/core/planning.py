@@ -180,8 +180,10 @@ def lane_limits(
         seen=to_end,
     )  # fmt: skip
     if not net.all_arrive:  # a lane path that ends on the ring: stop at its end
+        # planMoveInternal's dead end: stopSpeed(seen), no offset (libsumo's
+        # getStopSpeed at the seen distance gives SUMO's speed to 1e-9)
         v_end = idm.idm_stop_speed(
-            speed, to_end - STOP_OFFSET, start.v_lane, vtype=car.idm, dt=dt,
+            speed, to_end, start.v_lane, vtype=car.idm, dt=dt,
             n_substeps=step.n_substeps, action_step=step.action_step,
         )  # fmt: skip
         stops = ~net.route_arrives[route] & sees_route_end(
