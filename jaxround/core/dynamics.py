@@ -129,7 +129,7 @@ def planned_speed(
     with jax.named_scope("neighbour_tables"):
         tables = build_tables(net, route, pos, active, car.length)  # (R, M) ...
     with jax.named_scope("own_leader"):
-        leader = planning.own_leader(car, veh, start, tables, step=step)
+        leader = planning.own_leader(net, car, veh, start, tables, step=step)
     with jax.named_scope("lane_limits"):
         limits = planning.lane_limits(net, car, veh, start, step=step)
     with jax.named_scope("yield_line"):

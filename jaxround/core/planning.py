@@ -70,13 +70,16 @@ class Stepping(NamedTuple):
 class StartSpeeds(NamedTuple):
     """`start_speeds`: lane_index int (M,) the route lane each front is on;
     v_lane (M,) the desired speed there; v_start (M,) the speed planning
-    starts from; v_max_next, v_min_next (M,) the bounds of the next speed."""
+    starts from; v_max_next, v_min_next (M,) the bounds of the next speed;
+    reached bool (M, K) the route lanes SUMO's look-ahead walks onto
+    (`look_ahead_reach`): only their leaders, limits and link leaders count."""
 
     lane_index: jax.Array
     v_lane: jax.Array
     v_start: jax.Array
     v_max_next: jax.Array
     v_min_next: jax.Array
+    reached: jax.Array
 
 
 def start_speeds(
@@ -99,7 +102,8 @@ def start_speeds(
         v_start = traci.influence_speed(
             command, v_start, v_safe=v_start, v_max=v_max_next, v_min=v_min_next
         )
-    return StartSpeeds(k, v_lane, v_start, v_max_next, v_min_next)
+    reached = look_ahead_reach(net, car, veh, k, step=step)
+    return StartSpeeds(k, v_lane, v_start, v_max_next, v_min_next, reached)
 
 
 class OwnLeader(NamedTuple):
@@ -114,6 +118,7 @@ class OwnLeader(NamedTuple):
 
 
 def own_leader(
+    net: NetArrays,
     car: CarFollowing,
     veh: Vehicles,
     start: StartSpeeds,
@@ -122,7 +127,9 @@ def own_leader(
     step: Stepping,
 ) -> OwnLeader:
     """The leader with any part ahead on the vehicle's lanes, and the IDM's
-    follow speed behind it (SUMO's getLeader, then followSpeed)."""
+    follow speed behind it (SUMO's getLeader, then followSpeed): no follow
+    speed behind a leader whose back is on a lane the look-ahead does not
+    reach (planMoveInternal meets a lane's last vehicle only on its lanes)."""
     route, pos, speed = veh.route, veh.pos, veh.speed
     fronts = (tables.back + car.length)[route]  # (M, M) along each route
     leader, gap = leaders(fronts, pos, veh.active, car.length)
@@ -132,6 +139,9 @@ def own_leader(
         n_substeps=step.n_substeps,
     )  # fmt: skip
     back = jnp.where(leader >= 0, tables.back[route, jnp.maximum(leader, 0)], jnp.inf)
+    back_lane, _, _ = locate(net, route, back)
+    seen = jnp.take_along_axis(start.reached, back_lane[:, None], axis=1)[:, 0]
+    v_follow = jnp.where(seen | (leader < 0), v_follow, jnp.inf)
     return OwnLeader(leader, gap, back, v_follow)
 
 
@@ -167,6 +177,7 @@ def lane_limits(
     seen = starts - pos[:, None]
     k = start.lane_index
     later = (jnp.arange(starts.shape[1])[None, :] > k[:, None]) & (lanes_ahead >= 0)
+    later = later & start.reached
     columns = car.columns()  # per-vehicle numbers against (M, K) arrays
     v_limits = idm.idm_free_speed_ahead(
         speed[:, None], seen, limit_ahead, start.v_lane[:, None],
@@ -186,9 +197,7 @@ def lane_limits(
             speed, to_end, start.v_lane, vtype=car.idm, dt=dt,
             n_substeps=step.n_substeps, action_step=step.action_step,
         )  # fmt: skip
-        stops = ~net.route_arrives[route] & sees_route_end(
-            net, car, veh, start, step=step
-        )
+        stops = ~net.route_arrives[route] & start.reached[:, -1]
         v_free = jnp.where(stops, jnp.minimum(v_free, v_end), v_free)
     return LaneLimits(per_lane, later, jnp.min(per_lane, axis=1), v_free)
 
@@ -198,28 +207,30 @@ def lane_limits(
 LOOK_AHEAD_LENGTHS = 5.0
 
 
-def sees_route_end(
+def look_ahead_reach(
     net: NetArrays,
     car: CarFollowing,
     veh: Vehicles,
-    start: StartSpeeds,
+    lane_index: jax.Array,
     *,
     step: Stepping,
 ) -> jax.Array:
-    """bool (M,): SUMO's look-ahead reaches the route's last lane, whose end
-    is then a dead end to stop at. ``MSVehicle::planMoveInternal`` walks the
-    lanes ahead link by link and stops after a link once it has seen past
-    its braking distance (``dist``), passed a link onto a normal lane, and
-    seen more normal metres than ``max(5 * length, length + internal
-    metres)`` (the current lane's rest counted as internal if it is one):
-    on a junction's internal lane the walk stops sooner than just before it.
-    (A planned speed of 0 or a withdrawn request, which end the walk too,
-    are left out.)"""
+    """bool (M, K): the route lanes SUMO's look-ahead walks onto; the last
+    column reached: the route's end is a dead end to stop at.
+    ``MSVehicle::planMoveInternal`` walks the lanes ahead link by link and
+    stops after a link once it has seen past its braking distance
+    (``dist``), passed a link onto a normal lane, and seen more normal
+    metres than ``max(5 * length, length + internal metres)`` (the current
+    lane's rest counted as internal if it is one): on a junction's internal
+    lane the walk stops sooner than just before it. The lane after that
+    link is not walked onto: its last vehicle, its limit and its exit
+    link's leaders are not seen. (A planned speed of 0 or a withdrawn
+    request, which end the walk too, are left out.)"""
     route, pos = veh.route, veh.pos
     starts = net.route_lane_start[route]  # (M, K)
     lanes = net.route_lanes[route]  # (M, K)
     n_k = starts.shape[1]
-    k = start.lane_index
+    k = lane_index
     nxt = jnp.minimum(k + 1, n_k - 1)[:, None]
     pick = lambda x: jnp.take_along_axis(x, nxt, axis=1)  # noqa: E731  (M, 1)
     ahead = (jnp.arange(n_k)[None, :] > k[:, None]) & (lanes >= 0)
@@ -241,7 +252,7 @@ def sees_route_end(
             > jnp.maximum(LOOK_AHEAD_LENGTHS * length, length + internal_seen)
         )
     )
-    return ~jnp.any(stops_walk, axis=1)
+    return jnp.cumsum(stops_walk, axis=1) == 0
 
 
 def link_leader_speed(

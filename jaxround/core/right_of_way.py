@@ -107,7 +107,7 @@ def look_ahead(
     )  # fmt: skip
     k = start.lane_index
     mine = (jnp.arange(starts.shape[1])[None, :] >= k[:, None]) & (lanes_k >= 0)
-    v_follow_k = jnp.where(ahead_has & mine, v_follow_k, jnp.inf)
+    v_follow_k = jnp.where(ahead_has & mine & start.reached, v_follow_k, jnp.inf)
     v_pre = jnp.minimum(v_pre, prefix_min(v_follow_k, lanes_before.ends_early))
     ring_cap = jnp.minimum(ring_cap, at_lane(v_follow_k, lanes_before.ends_at))
 
@@ -127,6 +127,7 @@ def look_ahead(
         v_link_k = v_link_k.at[:, merges].set(
             jax.vmap(link_leaders_at, out_axes=1)(merges)
         )
+    v_link_k = jnp.where(start.reached, v_link_k, jnp.inf)
     v_pre = jnp.minimum(v_pre, prefix_min(v_link_k, lanes_before.starts_clearly_before))
     via_cap = at_lane(v_link_k, lanes_before.starts_at)
     return LookAhead(rearmost, v_link_k, v_pre, ring_cap, via_cap)
