@@ -178,9 +178,11 @@ def project(
 
     A vehicle on a lane of i's route is at that lane's offset plus its lane
     position. A vehicle on the sibling of a lane of i's route (exit vs
-    through) that has not yet diverged from it (lanes within 2.5 m, SUMO's
-    divergence point) is placed on that lane. Others are nan: vehicles
-    merging in from another lane are link leaders (`link_leaders.link_leader`).
+    through) at a position before the divergence point is placed on that
+    lane, as far before that lane's divergence point as it is before its
+    own (``MSLink::getLeaderInfo``'s same-source gap: distToCrossing -
+    minGap - leaderBackDist). Others are nan: vehicles merging in from
+    another lane are link leaders (`link_leaders.link_leader`).
 
     Returns:
         float (M_i, M_j).
@@ -190,8 +192,9 @@ def project(
     sib = net.lane_sibling[lane]  # (M,)
     sib_offset = lane_offset[:, jnp.maximum(sib, 0)]  # (M, M)
     not_apart = (sib >= 0) & (pos_on_lane < net.lane_diverge[lane])
+    shift = net.lane_diverge[jnp.maximum(sib, 0)] - net.lane_diverge[lane]  # (M,)
     via_sibling = jnp.where(
-        not_apart[None, :], sib_offset + pos_on_lane[None, :], jnp.nan
+        not_apart[None, :], sib_offset + (pos_on_lane + shift)[None, :], jnp.nan
     )
     return jnp.where(jnp.isnan(direct), via_sibling, direct)
 

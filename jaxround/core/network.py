@@ -37,8 +37,10 @@ class CompiledNetwork:
         lane_next: int (L,) the single successor of an internal lane, -1 else.
         lane_sibling: int (L,) the other internal lane leaving the same lane
             (exit vs through), -1 if none.
-        lane_diverge: float (L,) distance along an internal lane after which it
-            lies more than 2.5 m from its sibling (SUMO's divergence point).
+        lane_diverge: float (L,) lane position where an internal lane parts
+            from its sibling (SUMO's same-source conflict point: one
+            geometric distance from their common start, each lane's own
+            length scale).
         lane_partner: int (L,) the other internal lane merging into the same
             lane (entry vs through), -1 if none.
         lane_converge: float (L,) length of an internal lane's end within 2.5 m

@@ -184,9 +184,10 @@ def internal_geometry(
 
     Returns:
         (sibling, diverge, partner, converge): int (L,) the other internal lane
-        leaving the same lane (-1: none), float (L,) where they part
-        (`_divergence`); int (L,) the other internal lane merging into the
-        same lane (-1: none), float (L,) the length behind the merge
+        leaving the same lane (-1: none), float (L,) the lane position where
+        they part (`_dist_to_divergence` from the start, as SUMO's
+        same-source conflicts have it); int (L,) the other internal lane
+        merging into the same lane (-1: none), float (L,) the length behind the merge
         (`_dist_to_divergence`).
     """  # fmt: skip
     n_lanes = len(lanes)
@@ -200,7 +201,10 @@ def internal_geometry(
             same_pred = [x.getID() for x in other.getIncoming()] == pred
             if j != k and other.getEdge().getFunction() == "internal" and same_pred:
                 lane_sibling[k] = j
-                lane_diverge[k] = _divergence(shapes[k], shapes[j])
+                lane_diverge[k] = _dist_to_divergence(
+                    shapes[k], lane_length[k], shapes[j], lane_length[j],
+                    same_source=True,
+                )  # fmt: skip
     lane_partner = -np.ones(n_lanes, np.int32)
     lane_converge = np.zeros(n_lanes)
     for k in range(n_lanes):
@@ -219,10 +223,15 @@ def _dist_to_divergence(
     sib: np.ndarray,
     sib_length: float,
     min_dist: float = 2.5,
+    same_source: bool = False,
 ) -> float:
-    """SUMO's MSLink::computeDistToDivergence for two lanes merging into one:
+    """SUMO's MSLink::computeDistToDivergence. For two lanes merging into one:
     the length of `shape`'s end that lies within `min_dist` of `sib`, taken as
-    the max over both lanes and scaled to the lane's length."""
+    the max over both lanes and scaled to the lane's length. For two lanes
+    leaving the same lane (`same_source`, shapes not reversed): the lane
+    position where `shape` parts from `sib`, one geometric distance for both
+    lanes, each scaled to its own lane's length
+    (``interpolateGeometryPosToLanePos``)."""
 
     def glen(p):
         return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
@@ -235,7 +244,7 @@ def _dist_to_divergence(
         return float(np.min(np.linalg.norm(a + t[:, None] * v - pt, axis=1)))
 
     g_l, g_s = glen(shape), glen(sib)
-    lr, sr = shape[::-1], sib[::-1]
+    lr, sr = (shape, sib) if same_source else (shape[::-1], sib[::-1])
     lbc_s = lbc_l = 0.0
     if np.linalg.norm(lr[-1] - sr[-1]) > min_dist:
         dist = [pdist(p, sr) for p in lr] + [pdist(p, lr) for p in sr]
@@ -270,25 +279,3 @@ def connection_visibility(
         if conn.get("from") == from_edge and conn.get("to") == to_edge and lane_ok:
             return float(conn.get("visibility", 4.5))
     raise NetworkError(f"{path}: no connection {from_edge} -> {to_edge}")
-
-
-def _divergence(a: np.ndarray, b: np.ndarray, apart: float = 2.5) -> float:
-    """Arc length along polyline `a` where it first lies `apart` m from `b`."""
-    seg = np.linalg.norm(np.diff(a, axis=0), axis=1)
-    total = float(seg.sum())
-    cum = np.concatenate([[0.0], np.cumsum(seg)])
-    dense_b = _resample(b, 200)
-    for s_ in np.linspace(0.0, total, 400):
-        i = min(np.searchsorted(cum, s_, side="right") - 1, len(seg) - 1)
-        f = (s_ - cum[i]) / max(seg[i], 1e-9)
-        p = a[i] + f * (a[i + 1] - a[i])
-        if np.min(np.linalg.norm(dense_b - p, axis=1)) > apart:
-            return float(s_)
-    return total
-
-
-def _resample(poly: np.ndarray, n: int) -> np.ndarray:
-    seg = np.linalg.norm(np.diff(poly, axis=0), axis=1)
-    cum = np.concatenate([[0.0], np.cumsum(seg)])
-    s_ = np.linspace(0.0, cum[-1], n)
-    return np.stack([np.interp(s_, cum, poly[:, 0]), np.interp(s_, cum, poly[:, 1])], 1)

@@ -113,8 +113,9 @@ def test_gap_parameters_match_finite_differences_where_the_gate_is_smooth(
     and the window above rarely holds one near its threshold. Here each of
     GATE_STEPS consecutive states is stepped once at temperature 1 s; where
     the step's outcome is smooth in the parameter (central differences with h
-    and 2h agree within 1%) and the parameter acts, the gradient must agree
-    with them within 5%, and both parameters must act somewhere."""
+    and 2h agree within 1%) and the parameter acts (the difference spans at
+    least 50 float32 steps of the outcome), the gradient must agree with them
+    within 5%, and both parameters must act somewhere."""
     env, params, state, x0 = busy
     policy = uncontrolled_policy(env)
     key = jax.random.PRNGKey(2)
@@ -140,16 +141,20 @@ def test_gap_parameters_match_finite_differences_where_the_gate_is_smooth(
     grads = np.asarray(value_and_grad(x0, states)[1])
     assert np.all(np.isfinite(grads))
 
-    def central(i: int, rel: float) -> np.ndarray:
+    def central(i: int, rel: float) -> tuple[np.ndarray, np.ndarray]:
+        """The central difference, and whether it spans enough float32
+        steps of the outcome (a few hundred m/s summed) to be read."""
         e = jnp.zeros_like(x0).at[i].set(rel * float(x0[i]))
         up, down = value_and_grad(x0 + e, states)[0], value_and_grad(x0 - e, states)[0]
-        return (np.asarray(up) - np.asarray(down)) / (2 * float(e[i]))
+        up, down = np.asarray(up), np.asarray(down)
+        resolved = np.abs(up - down) > 50 * np.spacing(np.abs(up))
+        return (up - down) / (2 * float(e[i])), resolved
 
     for name in GAP_PARAMS:
         i = CALIBRATABLE.index(name)
-        fd, fd2 = central(i, 1e-2), central(i, 2e-2)
+        (fd, resolved), (fd2, _) = central(i, 1e-2), central(i, 2e-2)
         smooth = np.abs(fd - fd2) <= 0.01 * np.abs(fd)
-        acts = np.abs(fd) > 1e-2
+        acts = (np.abs(fd) > 1e-2) & resolved
         checked = np.nonzero(smooth & acts)[0]
         assert checked.size >= 1, (name, fd.tolist(), fd2.tolist())
         g = grads[checked, i]
