@@ -5,7 +5,7 @@ The held-out five-leg roundabout with traffic from two legs only: leg 0's
 two-lane entry against the ring traffic from leg 4's one-lane entry.
 
 - *How far a vehicle looks ahead for the end of its lane path*
-  (`jaxround.core.planning.sees_route_end`): the first vehicle, alone on the
+  (`jaxround.core.planning.look_ahead_reach`): the first vehicle, alone on the
   inner ring lane at a speed factor of 1.12, brakes for the end of that lane
   where SUMO's look-ahead reaches it, and not while it is on a junction's
   internal lane, where the walk stops sooner (the step braked there too
@@ -24,6 +24,8 @@ two-lane entry against the ring traffic from leg 4's one-lane entry.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import jax
 import numpy as np
 import pytest
@@ -31,7 +33,7 @@ import pytest
 from jaxround.analysis.episode_movie import rollout_states
 from jaxround.core.geometry import locate
 from jaxround.envs.roundabout import make
-from jaxround.scenario.config import config_from_dict
+from jaxround.scenario.config import ScenarioConfig, config_from_dict, load_config
 from jaxround.scenario.schedule import Schedule, make_schedule
 from sumo_export.runner import run_schedule
 from tests.conftest import builtin_dict
@@ -51,7 +53,7 @@ STEPS_CROSSING = 72
 FIRST = 24
 
 
-def two_legs(n_vehicles: int):
+def two_legs(n_vehicles: int) -> ScenarioConfig:
     d = builtin_dict("held_out/five_leg_two_lane")
     d["demand"].update(
         n_vehicles=n_vehicles,
@@ -68,18 +70,28 @@ def two_legs(n_vehicles: int):
     return config_from_dict(d)
 
 
-def worst_speed_error(steps: int, crossing_leaders: bool) -> tuple[float, int]:
-    """The first FIRST vehicles of the hour (1,400 in it; the next departs
-    after the steps compared), alone in both simulators for ``steps``:
-    the largest speed difference (m/s) and the vehicle-steps compared,
-    every vehicle on SUMO's lane and within 5 cm of its position."""
-    full = make_schedule(two_legs(1400), seed=0)
-    assert full.depart_s[FIRST] > steps * 0.5
-    cfg = two_legs(FIRST)
+def worst_speed_error(
+    steps: int,
+    crossing_leaders: bool,
+    scenario: Callable[[int], ScenarioConfig] = two_legs,
+    n_hour: int = 1400,
+    first: int = FIRST,
+    penetration: float = 0.0,
+) -> tuple[float, int]:
+    """The first `first` vehicles of the scenario's hour (`n_hour` in it; the
+    next departs after the steps compared; the hour's AVs at `penetration`),
+    alone in both simulators for ``steps``: the largest speed difference
+    (m/s) and the vehicle-steps compared, every vehicle on SUMO's lane and
+    within 5 cm of its position."""
+    full = make_schedule(scenario(n_hour), seed=0, penetration=penetration)
+    assert full.depart_s[first] > steps * 0.5
+    cfg = scenario(first)
+    is_av = full.is_av[:first]
     schedule = Schedule(
-        depart_s=full.depart_s[:FIRST], origin=full.origin[:FIRST],
-        destination=full.destination[:FIRST], speed_factor=full.speed_factor[:FIRST],
-        av_rank=np.arange(FIRST, dtype=np.int32), penetration=0.0,
+        depart_s=full.depart_s[:first], origin=full.origin[:first],
+        destination=full.destination[:first], speed_factor=full.speed_factor[:first],
+        av_rank=np.where(is_av, 0, first).astype(np.int32),  # those AVs, exactly
+        penetration=1.0 if is_av.any() else 0.0,
     )  # fmt: skip
     sumo: dict[float, dict[str, tuple[str, float, float]]] = {}
 
@@ -132,3 +144,48 @@ def test_the_crossings_link_leaders_step_as_sumo_does() -> None:
     worst, compared = worst_speed_error(STEPS_CROSSING, crossing_leaders=True)
     assert worst < 1e-3, worst
     assert compared > 350
+
+
+def five_legs(n_vehicles: int) -> ScenarioConfig:
+    """The held-out roundabout itself, every leg busy, `max_vehicles` 32."""
+    d = builtin_dict("held_out/five_leg_two_lane")
+    d["demand"]["n_vehicles"] = n_vehicles
+    d["simulation"]["max_vehicles"] = 32
+    return config_from_dict(d)
+
+
+def test_the_look_ahead_stops_where_sumos_walk_does() -> None:
+    # the held-out hour's first 27 s (2,300 vehicles in it, 22 depart by
+    # then): at 14.5 s a vehicle on the left entry's internal lane
+    # accelerates freely in SUMO; the step followed a vehicle merging 78 m
+    # ahead at the next leg, beyond the lane where SUMO's look-ahead stops
+    # (until 2026-12-02: 8.8455 m/s against SUMO's 8.8991)
+    worst, compared = worst_speed_error(
+        54, crossing_leaders=False, scenario=five_legs, n_hour=2300, first=22
+    )
+    assert worst < 1e-3, worst
+    assert compared > 300
+
+
+def two_lane(n_vehicles: int) -> ScenarioConfig:
+    """configs/two_lane.yaml, `max_vehicles` 32."""
+    d = builtin_dict("two_lane")
+    d["demand"]["n_vehicles"] = n_vehicles
+    d["simulation"]["max_vehicles"] = 32
+    return config_from_dict(d)
+
+
+def test_a_vehicle_turning_off_leads_as_sumos_same_source_foe() -> None:
+    # two_lane.yaml's hour at 50% AVs, its first 30 s: at 18 s an AV on the
+    # outer ring lane follows a vehicle turning off to the exit beside it;
+    # SUMO measures the gap to the point where the two internal lanes part,
+    # on each lane (MSLink::computeDistToDivergence, same source), 0.072 m
+    # shorter than the step's position for position (until 2026-12-02:
+    # 7.9164 m/s against SUMO's 7.9128)
+    n_hour = load_config("two_lane").demand.n_vehicles
+    worst, compared = worst_speed_error(
+        60, crossing_leaders=False, scenario=two_lane, n_hour=n_hour, first=23,
+        penetration=0.5,
+    )  # fmt: skip
+    assert worst < 1e-3, worst
+    assert compared > 300
