@@ -45,8 +45,10 @@ def test_chunks_give_the_states_of_one_loop(capsys) -> None:
     leaves = jax.tree_util.tree_leaves_with_path
     for (path, a), (_, b) in zip(leaves(got), leaves(want), strict=True):
         a, b = np.asarray(a), np.asarray(b)
-        if a.dtype.kind == "f":  # XLA may fuse the chunks' sums differently
-            np.testing.assert_allclose(a, b, rtol=1e-6, err_msg=str(path))
+        if a.dtype.kind == "f":  # XLA may fuse the chunks' sums differently:
+            # positions drift by float32 steps (1.3e-5 m at 13 m), and a time
+            # to collision, a ratio, by 3e-5 of itself (2026-12-02)
+            np.testing.assert_allclose(a, b, rtol=1e-4, err_msg=str(path))
         else:
             np.testing.assert_array_equal(a, b, err_msg=str(path))
     # the trips themselves are the same to the bit
