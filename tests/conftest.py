@@ -102,6 +102,7 @@ SLOW_FILES = (
     "tests/unit/test_ppo.py",  # 75
     "tests/sumo/test_env.py",  # 65
     "tests/sumo/test_turn_order.py",  # 65: 31 s and 36 s of two legs, step by step
+    "tests/sumo/test_look_ahead_sumo.py",  # 65: 27 s of five legs, 30 s of two_lane
     "tests/e2e/test_search_cli.py",  # 65
     "tests/e2e/test_distributed_train.py",  # 60
     "tests/e2e/test_train_cli.py",  # 55
