@@ -14,6 +14,8 @@ comparison of the first vehicles of an hour.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import pytest
 
 from jaxround.scenario.config import ScenarioConfig, config_from_dict, load_config
@@ -23,12 +25,16 @@ from tests.sumo.test_turn_order import worst_speed_error
 pytestmark = pytest.mark.sumo
 
 
-def five_legs(n_vehicles: int) -> ScenarioConfig:
-    """The held-out roundabout itself, every leg busy, `max_vehicles` 32."""
-    d = builtin_dict("held_out/five_leg_two_lane")
-    d["demand"]["n_vehicles"] = n_vehicles
-    d["simulation"]["max_vehicles"] = 32
-    return config_from_dict(d)
+def builtin_hour(name: str) -> Callable[[int], ScenarioConfig]:
+    """A built-in scenario with `n_vehicles` in its hour, `max_vehicles` 32."""
+
+    def scenario(n_vehicles: int) -> ScenarioConfig:
+        d = builtin_dict(name)
+        d["demand"]["n_vehicles"] = n_vehicles
+        d["simulation"]["max_vehicles"] = 32
+        return config_from_dict(d)
+
+    return scenario
 
 
 def test_the_look_ahead_stops_where_sumos_walk_does() -> None:
@@ -38,18 +44,14 @@ def test_the_look_ahead_stops_where_sumos_walk_does() -> None:
     # ahead at the next leg, beyond the lane where SUMO's look-ahead stops
     # (until 2026-12-02: 8.8455 m/s against SUMO's 8.8991)
     worst, compared = worst_speed_error(
-        54, crossing_leaders=False, scenario=five_legs, n_hour=2300, first=22
+        54,
+        crossing_leaders=False,
+        scenario=builtin_hour("held_out/five_leg_two_lane"),
+        n_hour=2300,
+        first=22,
     )
     assert worst < 1e-3, worst
     assert compared > 300
-
-
-def two_lane(n_vehicles: int) -> ScenarioConfig:
-    """configs/two_lane.yaml, `max_vehicles` 32."""
-    d = builtin_dict("two_lane")
-    d["demand"]["n_vehicles"] = n_vehicles
-    d["simulation"]["max_vehicles"] = 32
-    return config_from_dict(d)
 
 
 def test_a_vehicle_turning_off_leads_as_sumos_same_source_foe() -> None:
@@ -61,8 +63,12 @@ def test_a_vehicle_turning_off_leads_as_sumos_same_source_foe() -> None:
     # 7.9164 m/s against SUMO's 7.9128)
     n_hour = load_config("two_lane").demand.n_vehicles
     worst, compared = worst_speed_error(
-        60, crossing_leaders=False, scenario=two_lane, n_hour=n_hour, first=23,
+        60,
+        crossing_leaders=False,
+        scenario=builtin_hour("two_lane"),
+        n_hour=n_hour,
+        first=23,
         penetration=0.5,
-    )  # fmt: skip
+    )
     assert worst < 1e-3, worst
     assert compared > 300
