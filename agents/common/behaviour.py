@@ -52,11 +52,11 @@ def policy_behaviour(
         make_schedule(cfg, seed=seed, penetration=penetration)
     )
     weights = {k: jnp.asarray(v) for k, v in arrays.items()}
-    out: dict[str, dict[str, np.ndarray]] = {}
-    for driver in ("policy", "uncontrolled"):
-        act = switched_policy(weights, layout, jnp.bool_(driver == "policy"))
 
-        def body(carry: Any, key: jax.Array, act: Any = act) -> tuple[Any, Any]:
+    def episode(carry: Any, keys: jax.Array, use_policy: jax.Array) -> Any:
+        act = switched_policy(weights, layout, use_policy)
+
+        def body(carry: Any, key: jax.Array) -> tuple[Any, Any]:
             obs, state = carry
             action = act(obs, state, key)
             obs, nxt, _, _, _ = env.step_env(key, state, action, params)
@@ -64,11 +64,15 @@ def policy_behaviour(
             to_line = env.net.yield_offset[state.route] - state.pos
             return (obs, nxt), (agent, to_line, nxt.speed, action[:, 0])
 
-        obs, state = env.reset_to_schedule(schedule, params)
-        keys = jax.random.split(jax.random.PRNGKey(seed), env.episode_steps)
-        _, (agent, to_line, speed, raw) = jax.jit(
-            lambda carry, keys, body=body: jax.lax.scan(body, carry, keys)
-        )((obs, state), keys)
+        return jax.lax.scan(body, carry, keys)[1]
+
+    # one program for both drivers: the switch is an argument, not a constant
+    run = jax.jit(episode)
+    start = env.reset_to_schedule(schedule, params)
+    keys = jax.random.split(jax.random.PRNGKey(seed), env.episode_steps)
+    out: dict[str, dict[str, np.ndarray]] = {}
+    for driver in ("policy", "uncontrolled"):
+        agent, to_line, speed, raw = run(start, keys, jnp.bool_(driver == "policy"))
         agent = np.asarray(agent)
         u = np.asarray(assertiveness(raw)) if layout.action == "assertiveness" else 0
         av = cfg.drivers.av
