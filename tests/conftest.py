@@ -85,45 +85,51 @@ def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
     return (os.cpu_count() or 1) + 1
 
 
-#: The slowest test files (seconds on a 2-core CPU, `pytest --durations`),
-#: slowest first. They are handed out first, so that pytest-xdist's workers
-#: (one file each at a time, ``--dist loadfile``) finish together rather than
-#: one of them ending the run with a long file.
+#: The slowest test files (seconds on a 2-core CPU with the other workers
+#: running, `pytest --durations` of a full run), slowest first. They are
+#: handed out first, so that pytest-xdist's workers (one file each at a
+#: time, ``--dist loadfile``) finish together rather than one of them
+#: ending the run with a long file.
 SLOW_FILES = (
-    "tests/e2e/test_two_lane_agents.py",  # 380: training, evaluations, a search
-    "tests/unit/test_ring_turns.py",  # 270: 4 min of two lanes, three gradients
-    "tests/study/test_study_browser.py",  # 155: rides in real time
-    "tests/sumo/test_ray_executor.py",  # 145
-    "tests/e2e/test_notebooks.py",  # 120
-    "tests/unit/test_gradients.py",  # 110
-    "tests/e2e/test_pipeline.py",  # 105
-    "tests/sumo/test_bench.py",  # 105
-    "tests/sumo/test_drivers.py",  # 80
-    "tests/unit/test_ppo.py",  # 75
-    "tests/sumo/test_env.py",  # 65
-    "tests/sumo/test_turn_order.py",  # 65: 31 s and 36 s of two legs, step by step
-    "tests/sumo/test_look_ahead_sumo.py",  # 65: 27 s of five legs, 30 s of two_lane
-    "tests/e2e/test_search_cli.py",  # 65
-    "tests/e2e/test_distributed_train.py",  # 60
-    "tests/e2e/test_train_cli.py",  # 55
-    "tests/e2e/test_apg.py",  # 55
-    "tests/unit/test_setting_search.py",  # 50
-    "tests/sumo/test_av.py",  # 50
-    "tests/unit/test_entry_hold.py",  # 50: 200 s of two lanes, the changer each step
-    "tests/sumo/test_lane_hold_probe.py",  # 50: SUMO's holds, 3 x 600 s in both
-    "tests/sumo/test_two_lane_step.py",  # 45: a parity run on two lanes
-    "tests/unit/test_capacity.py",  # 45
-    "tests/sumo/test_entry_hold_sumo.py",  # 45
-    "tests/e2e/test_cli.py",  # 35
-    "tests/sumo/test_lane_requests.py",  # 35: three SUMO runs and replays
-    "tests/unit/test_demand_gradient.py",  # 35
-    "tests/sumo/test_conflicts_sumo.py",  # 35
-    "tests/study/test_study_browser_lanes.py",  # 25: a two-lane ride
-    "tests/sumo/test_ring_rounds.py",  # 25
-    "tests/sumo/test_crossing_leaders.py",  # 20: 10 minutes of two lanes, the option on
-    "tests/sumo/test_lane_action.py",  # 16: a lane rule in both simulators
-    "tests/sumo/test_ring_changer_traffic.py",  # 15
-    "tests/sumo/test_ring_changer.py",  # 15
+    "tests/e2e/test_two_lane_agents.py",  # 655: training, evaluations, a search
+    "tests/unit/test_ring_turns.py",  # 495: 4 min of two lanes, three gradients
+    "tests/e2e/test_pipeline.py",  # 275
+    "tests/e2e/test_notebooks.py",  # 255
+    "tests/sumo/test_lane_requests.py",  # 210: three SUMO runs and replays
+    "tests/sumo/test_bench.py",  # 210
+    "tests/unit/test_gradients.py",  # 205
+    "tests/sumo/test_turn_order.py",  # 200: 31 s and 36 s of two legs, step by step
+    "tests/sumo/test_drivers.py",  # 180
+    "tests/sumo/test_look_ahead_sumo.py",  # 180: 27 s of five legs, 30 s of two_lane
+    "tests/study/test_study_browser.py",  # 175: rides in real time
+    "tests/unit/test_ppo.py",  # 165
+    "tests/sumo/test_lane_hold_probe.py",  # 150: SUMO's holds, 3 x 600 s in both
+    "tests/sumo/test_env.py",  # 150
+    "tests/e2e/test_train_cli.py",  # 145
+    "tests/sumo/test_two_lane_step.py",  # 120: a parity run on two lanes
+    "tests/unit/test_setting_search.py",  # 115
+    "tests/sumo/test_ring_changer.py",  # 110
+    "tests/sumo/test_av.py",  # 110
+    "tests/e2e/test_distributed_train.py",  # 105
+    "tests/e2e/test_apg.py",  # 105
+    "tests/unit/test_entry_hold.py",  # 100: 200 s of two lanes, the changer each step
+    "tests/unit/test_capacity.py",  # 100
+    "tests/sumo/test_entry_hold_sumo.py",  # 90
+    "tests/e2e/test_search_cli.py",  # 85
+    "tests/e2e/test_cli.py",  # 80
+    "tests/unit/test_constrained_ppo.py",  # 80
+    "tests/sumo/test_lane_action.py",  # 75: a lane rule in both simulators
+    "tests/unit/test_demand_gradient.py",  # 75
+    "tests/sumo/test_conflicts_sumo.py",  # 70
+    "tests/sumo/test_lc2013_jax.py",  # 65
+    "tests/sumo/test_ring_changer_traffic.py",  # 65
+    "tests/sumo/test_crossing_leaders.py",  # 65: 10 minutes of two lanes, the option on
+    "tests/unit/test_rollout.py",  # 55
+    "tests/sumo/test_controller.py",  # 55
+    "tests/integrations/test_gymnax_env.py",  # 50
+    "tests/sumo/test_parity.py",  # 45
+    "tests/sumo/test_entry_stop_line.py",  # 40
+    "tests/integrations/test_jaxmarl_env.py",  # 40
 )
 
 
