@@ -39,6 +39,7 @@ from jaxround.envs.lane_view import lane_request
 from jaxround.lanes import active_lanes, ring_batches, ring_changer, ring_rounds
 from jaxround.lanes.active_lanes import TurnOrder
 from jaxround.lanes.best_lanes import LookAheadDriver
+from jaxround.lanes.blockers import blocker_stop_speed
 from jaxround.lanes.entry_hold import (
     held_by_approaching,
     held_by_occupied,
@@ -195,15 +196,37 @@ class LaneChanger:
         (`jaxround.envs.lane_view.lane_request`)."""
         return lane_request(self.arrays, state, lane_action, agent)
 
-    def patch(self, state: EnvState, lc: LaneChangeParams) -> SpeedPatch:
-        """``MSLCM_LC2013::patchSpeed`` for the next move: the speed advices
-        and wishes the last lane changes left in the memory."""
+    def patch(
+        self, state: EnvState, lc: LaneChangeParams, car: CarFollowing | None = None
+    ) -> SpeedPatch:
+        """``MSLCM_LC2013::patchSpeed`` for the next move: the room kept for
+        a blocker, the speed advices and the wishes the last lane changes
+        left in the memory (``car`` as in `vehicles`)."""
         memory = state.lanes.memory
+        driver = self._driver(state, car)
+        v = state.speed
+        _, lane, _ = ring_changer.locate(self.arrays, state.route, state.pos)
+        v_desired = jnp.minimum(
+            driver.max_speed, self.arrays.lane_speed[lane] * state.speed_factor
+        )
+        stop = blocker_stop_speed(memory, driver, v, v_desired, self.dt)
+        v_min_emergency = jnp.maximum(0.0, v - driver.emergency_decel * self.dt)
 
         def patched(v_min: jax.Array, v_max: jax.Array) -> jax.Array:
-            return patch_speed(memory, v_min, v_max, v_max, lc.cooperative)
+            return patch_speed(
+                memory, v_min, v_max, v_max, lc.cooperative,
+                blocker_stop=stop, v_min_emergency=v_min_emergency,
+            )  # fmt: skip
 
         return patched
+
+    def _driver(self, state: EnvState, car: CarFollowing | None) -> Driver:
+        """Each slot's `Driver`: the step's numbers ``car``, or its class's."""
+        if car is None:
+            return jax.tree.map(
+                lambda h, a: jnp.where(state.is_av, a, h), self.hv, self.av
+            )
+        return car_driver(car, state.active.shape)
 
     def vehicles(
         self,
@@ -225,12 +248,7 @@ class LaneChanger:
             lambda x, z: jnp.where(active.reshape(-1, *([1] * (x.ndim - 1))), x, z),
             prepare_step(state.lanes.memory), Memory.zeros(active.shape[0]),
         )  # fmt: skip
-        if car is None:
-            driver = jax.tree.map(
-                lambda h, a: jnp.where(state.is_av, a, h), self.hv, self.av
-            )
-        else:
-            driver = car_driver(car, active.shape)
+        driver = self._driver(state, car)
         veh = ring_changer.RingVehicles(
             path=state.route, pos=state.pos, speed=state.speed, accel=state.accel,
             active=active, driver=driver, speed_factor=state.speed_factor,

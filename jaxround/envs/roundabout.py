@@ -259,7 +259,7 @@ class RoundaboutEnv:
             changer = self.lane_changer  # the lane action: a TraCI request
             request = changer and changer.request(state, action[:, 1], agent)
         lc = LaneChangeParams() if p.lane_change is None else p.lane_change
-        patch = changer and changer.patch(state, lc)
+        patch = changer and changer.patch(state, lc, pv)
         v_next, regs, _, leader, gap, own_entry = dynamics.planned_speed(
             net, pv, state.route, state.pos, state.speed, state.speed_factor,
             state.active, state.waiting_s, state.registrations, t, self.dt,

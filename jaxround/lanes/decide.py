@@ -77,13 +77,15 @@ class Told(NamedTuple):
 
 
 class Kept(NamedTuple):
-    """What a turn leaves in the candidate's own memory. Scalars, and its
-    advices (A,)."""
+    """What a turn leaves in the candidate's own memory (`Memory`'s fields
+    but the state). Scalars, and its advices (A,)."""
 
     speed_gain_probability: jax.Array
     keep_right_probability: jax.Array
     look_ahead_speed: jax.Array
     advices: jax.Array
+    left_space: jax.Array
+    blocker_length: jax.Array
 
 
 def deliver(memory: Memory, told: Told) -> Memory:
@@ -111,6 +113,7 @@ def turn_of(
     dt: float,
     request: jax.Array | int = traci.NONE,
     request_s: float = 0.0,
+    first_blocked: Neighbour | None = None,
 ) -> tuple[Turn, Kept, Told]:
     """Vehicle ``i``'s turn: right first, then left (`MSLaneChanger::change`),
     written nowhere.
@@ -123,6 +126,8 @@ def turn_of(
         curr, best: the LaneQ of its lane and of its best lane.
         leader: the leader on its own lane.
         right, left: what it sees on each side.
+        first_blocked: the first vehicle registered blocked on its lane
+            (`jaxround.lanes.blockers`).
         request, request_s: its TraCI lane request (`jaxround.lanes.traci`)
             and the seconds the request has left.
 
@@ -133,6 +138,7 @@ def turn_of(
     sgp = memory.speed_gain_probability[i]
     krp = memory.keep_right_probability[i]
     look = memory.look_ahead_speed[i]
+    left_space, reserved = memory.left_space[i], memory.blocker_length[i]
     states, told = {}, []
     for direction, side in ((-1, right), (1, left)):
         blocked = check_change(direction, side.ego, side.lead, side.follow, lc)
@@ -141,16 +147,18 @@ def turn_of(
             curr=curr, neigh=side.neigh, best=best, leader=leader,
             neigh_lead=side.lead, neigh_follow=side.follow, blocked=blocked,
             lc=lc, dt=dt, roundabout_bonus=side.bonus, request=request,
-            request_s=request_s,
+            request_s=request_s, first_blocked=first_blocked,
+            left_space_kept=left_space, blocker_kept=reserved,
         )  # fmt: skip
+        unchanged = Wish(0, sgp, krp, look, jnp.full(3, jnp.nan), jnp.nan, 0,
+                         jnp.nan, 0, left_space, reserved)  # fmt: skip
         wish = jax.tree.map(
-            lambda new, old, may=side.may: jnp.where(may, new, old),
-            wish,
-            Wish(0, sgp, krp, look, jnp.full(3, jnp.nan), jnp.nan, 0, jnp.nan, 0),
+            lambda new, old, may=side.may: jnp.where(may, new, old), wish, unchanged
         )
         sgp = wish.speed_gain_probability
         krp = wish.keep_right_probability
         look = wish.look_ahead_speed
+        left_space, reserved = wish.left_space, wish.blocker_length
         # `checkChange`: a wanted change nothing blocked may still be blocked
         # by a critical leader (`getCriticalLeader`) and held back at the
         # target lane's entry (`unsafeLinkAhead`); then the request once
@@ -191,7 +199,7 @@ def turn_of(
         state_left=state_left,
     )
     messages = Told(*(jnp.stack(column) for column in zip(*told, strict=True)))
-    return turn, Kept(sgp, krp, look, advices), messages
+    return turn, Kept(sgp, krp, look, advices, left_space, reserved), messages
 
 
 def keep(memory: Memory, i: jax.Array, kept: Kept) -> Memory:
@@ -205,6 +213,8 @@ def keep(memory: Memory, i: jax.Array, kept: Kept) -> Memory:
         ),
         look_ahead_speed=memory.look_ahead_speed.at[i].set(kept.look_ahead_speed),
         advices=memory.advices.at[i].set(kept.advices),
+        left_space=memory.left_space.at[i].set(kept.left_space),
+        blocker_length=memory.blocker_length.at[i].set(kept.blocker_length),
     )
 
 

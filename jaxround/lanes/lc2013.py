@@ -23,6 +23,8 @@ import jax.numpy as jnp
 
 from jaxround.lanes import actions as lca
 from jaxround.lanes import follow, traci
+from jaxround.lanes.anticipate import accelerating, anticipate_follow_speed
+from jaxround.lanes.blockers import save_blocker_length
 from jaxround.lanes.inform import inform_follower, inform_leader
 from jaxround.lanes.params import LaneChangeParams
 from jaxround.lanes.views import Ego, LaneQ, Neighbour
@@ -53,6 +55,8 @@ class Wish(NamedTuple):
         own_advices: (3,) advices the vehicle gives itself (NaN: none).
         leader_speed, leader_bits, follower_speed, follower_bits: what it
             tells the target lane's leader and follower (NaN / 0: nothing).
+        left_space, blocker_length: its ``myLeftSpace`` and
+            ``myLeadingBlockerLength`` after the look (set by an urgent wish).
     """
 
     state: jax.Array
@@ -64,6 +68,8 @@ class Wish(NamedTuple):
     leader_bits: jax.Array
     follower_speed: jax.Array
     follower_bits: jax.Array
+    left_space: jax.Array
+    blocker_length: jax.Array
 
 
 def check_change(
@@ -93,43 +99,6 @@ def check_change(
     ).astype(jnp.int32)
 
 
-def accelerating(vehicle: Neighbour) -> jax.Array:
-    """Whether SUMO sees the vehicle accelerate (``getAcceleration() > 0``).
-
-    A vehicle that approaches its desired speed on a free road accelerates
-    by ever smaller amounts, forever in SUMO's doubles; in float32 its speed
-    stops a few units in the last place short of the desired speed and its
-    acceleration reads 0. Such a vehicle (within 32 of those units) counts
-    as accelerating, as in SUMO; in float64 the margin is negligible."""
-    short = vehicle.v_max - vehicle.speed
-    margin = 32 * jnp.finfo(jnp.result_type(vehicle.speed)).eps * vehicle.v_max
-    stalled = (vehicle.accel == 0) & (short > 0) & (short < margin)
-    return vehicle.exists & ((vehicle.accel > 0) | stalled)
-
-
-def anticipate_follow_speed(
-    ego: Ego, leader: Neighbour, dist: jax.Array, v_max: jax.Array,
-    accelerating: jax.Array, dt: float,
-) -> jax.Array:  # fmt: skip
-    """`anticipateFollowSpeed`: the speed a lane will allow, capped at
-    ``v_max``: with an accelerating leader in play the IDM's speed one second
-    on, else the generic safe speed behind the leader (or to stop within
-    ``dist``, the lane's LaneQ length)."""
-    driver, v = ego.driver, ego.speed
-    v_1s = v + driver.accel - driver.accel * dt
-    accelerating_free = follow.follow_speed(driver, v_1s, dist, 0.0, ego.v_max, dt)
-    accelerating_led = follow.follow_speed(
-        driver, v_1s, leader.gap, leader.speed, ego.v_max, dt
-    )
-    steady_free = follow.safe_stop_speed(driver, dist, dt)
-    steady_led = follow.safe_follow_speed(
-        driver, leader.gap, leader.speed, leader.driver.decel, dt
-    )
-    led = jnp.where(accelerating, accelerating_led, steady_led)
-    free = jnp.where(accelerating, accelerating_free, steady_free)
-    return jnp.minimum(v_max, jnp.where(leader.exists, led, free))
-
-
 def wants_change(
     direction: int,
     ego: Ego,
@@ -151,6 +120,9 @@ def wants_change(
     roundabout_bonus: jax.Array | float = 0.0,
     request: jax.Array | int = traci.NONE,
     request_s: float = 0.0,
+    first_blocked: Neighbour | None = None,
+    left_space_kept: jax.Array | float = 0.0,
+    blocker_kept: jax.Array | float = 0.0,
 ) -> Wish:
     """`MSLCM_LC2013::_wantsChange` for ``direction`` (-1 right, +1 left).
 
@@ -167,6 +139,9 @@ def wants_change(
             roundabout).
         request, request_s: a TraCI lane request (`jaxround.lanes.traci`,
             lane-change mode 1621) and the seconds it has left.
+        first_blocked: the first vehicle registered blocked on its lane.
+        left_space_kept, blocker_kept: its ``myLeftSpace`` and
+            ``myLeadingBlockerLength`` so far this step.
     """
     right = direction < 0
     lca_dir = lca.RIGHT if right else lca.LEFT
@@ -232,6 +207,12 @@ def wants_change(
     # 5. the urgent change's negotiation with the target lane (the request's
     # remaining time where it asked)
     left_space = current_dist - ego.pos
+    # room for a blocker that wants this lane (`jaxround.lanes.blockers`)
+    reserved = jnp.asarray(blocker_kept, float_dtype)
+    for blocker in (neigh_lead, first_blocked):
+        if blocker is not None:
+            reserved = save_blocker_length(blocker, counter=counter, kept=reserved)
+    reserved = jnp.where(urgent_now, reserved, blocker_kept)
     lanes_to_go = jnp.maximum(abs_offset, 1.0)
     per_lane = left_space / jnp.maximum(look_ahead, NUMERICAL_EPS) / lanes_to_go
     remaining_s = jnp.where(
@@ -241,7 +222,7 @@ def wants_change(
     )
     planned, lead_advice, leader_speed, leader_bits = inform_leader(
         ego, neigh_lead, blocked=blocked, my_lca=my_lca, remaining_s=remaining_s,
-        left_space=left_space, advices=advices, dt=dt,
+        left_space=left_space - reserved, advices=advices, dt=dt,
     )  # fmt: skip
     follower_speed, follower_bits, follow_advice = inform_follower(
         ego, neigh_follow, blocked=blocked, my_lca=my_lca, remaining_s=remaining_s,
@@ -392,4 +373,6 @@ def wants_change(
         follower_bits=jnp.where(negotiates & tells_follower, follower_bits, 0).astype(
             jnp.int32
         ),
+        left_space=jnp.where(urgent_now, left_space, left_space_kept),
+        blocker_length=reserved,
     )

@@ -29,6 +29,8 @@ def prepare_step(memory: Memory) -> Memory:
         speed_gain_probability=jnp.ceil(memory.speed_gain_probability * 1e5) * 1e-5,
         keep_right_probability=jnp.ceil(memory.keep_right_probability * 1e5) * 1e-5,
         advices=jnp.full_like(memory.advices, jnp.nan),
+        left_space=jnp.zeros_like(memory.left_space),
+        blocker_length=jnp.zeros_like(memory.blocker_length),
     )
 
 
@@ -42,6 +44,10 @@ def after_change(memory: Memory, changed: jax.Array) -> Memory:
         keep_right_probability=jnp.where(changed, zero, memory.keep_right_probability),
         look_ahead_speed=jnp.where(changed, zero, memory.look_ahead_speed),
         advices=jnp.where(changed[..., None], jnp.nan, memory.advices),
+        # SUMO keeps these where the new lane is not yet the best; a change
+        # that keeps room is an urgent one, onto the best lane
+        left_space=jnp.where(changed, zero, memory.left_space),
+        blocker_length=jnp.where(changed, zero, memory.blocker_length),
     )
 
 
@@ -51,11 +57,14 @@ def patch_speed(
     wanted: jax.Array,
     v_max: jax.Array,
     cooperative_speed: jax.Array | float,
+    blocker_stop: jax.Array | None = None,
+    v_min_emergency: jax.Array | None = None,
 ) -> jax.Array:
     """The next speed after the lane-change advices, float (M,).
 
-    The smallest advice within [v_min, v_max] (blended with ``wanted`` by
-    lcCooperativeSpeed) wins; without one, a blocked strategic wish or a
+    The stop before the room kept for a blocker (braking beyond decel if it
+    must) and the smallest advice within [v_min, v_max] (blended with
+    ``wanted`` by lcCooperativeSpeed) win; without either, a blocked strategic wish or a
     blocking leader speeds up to ``(v_max + wanted) / 2`` and a cooperative
     wish blocked by its leader slows to ``(v_min + wanted) / 2``.
 
@@ -63,7 +72,23 @@ def patch_speed(
         memory: the state and advices set in the previous step's changes.
         v_min, wanted, v_max: (M,) `finalizeSpeed`'s bounds and its speed.
         cooperative_speed: lcCooperativeSpeed (clipped to [0, 1]), scalar or (M,).
+        blocker_stop, v_min_emergency: (M,) the stop before the room kept
+            for a blocker (`jaxround.lanes.blockers.blocker_stop_speed`,
+            NaN: none) and ``minNextSpeedEmergency``: braking for it may
+            go beyond decel, and caps ``v_max`` (None: no room kept).
     """
+    got_blocker = jnp.zeros(jnp.shape(wanted), bool)
+    blocker_v = jnp.full(jnp.shape(wanted), jnp.inf, jnp.result_type(wanted))
+    if blocker_stop is not None and v_min_emergency is not None:
+        keeps = ~jnp.isnan(blocker_stop)
+        safe = jnp.where(keeps, blocker_stop, jnp.inf)
+        v_max = jnp.where(
+            keeps, jnp.minimum(v_max, jnp.maximum(safe, v_min_emergency)), v_max
+        )
+        got_blocker = keeps & (safe < wanted)
+        harder = got_blocker & (safe < v_min) & (safe >= v_min_emergency)
+        v_min = jnp.where(harder, jnp.maximum(v_min_emergency, safe), v_min)
+        blocker_v = jnp.where(got_blocker, jnp.maximum(v_min, safe), jnp.inf)
     weight = jnp.clip(jnp.asarray(cooperative_speed), 0.0, 1.0)
     weight = weight[..., None] if weight.ndim else weight
     advices = memory.advices  # (M, A)
@@ -71,8 +96,11 @@ def patch_speed(
         ~jnp.isnan(advices) & (advices >= v_min[:, None]) & (advices <= v_max[:, None])
     )
     blended = advices * weight + (1.0 - weight) * wanted[:, None]
-    advised = jnp.minimum(wanted, jnp.min(jnp.where(usable, blended, jnp.inf), axis=1))
-    got_one = jnp.any(usable, axis=1)
+    advised = jnp.minimum(
+        jnp.minimum(wanted, blocker_v),
+        jnp.min(jnp.where(usable, blended, jnp.inf), axis=1),
+    )
+    got_one = got_blocker | jnp.any(usable, axis=1)
 
     state = memory.state
     wants_blocked = ((state & lca.WANTS_LANECHANGE) != 0) & ((state & lca.BLOCKED) != 0)

@@ -152,7 +152,9 @@ class View(NamedTuple):
     """What one vehicle finds at its turn, left by the turns before it:
     the lanes (M,) and who had a turn (M,); the last and first vehicle
     registered blocked on its lane (slots, -1: none); its state and
-    advices (A,) with the messages it got."""
+    advices (A,) with the messages it got; every vehicle's own state (M,),
+    as far as it decides a wish (the LEFT and RIGHT bits, which no message
+    carries)."""
 
     lane: jax.Array
     done: jax.Array
@@ -160,6 +162,7 @@ class View(NamedTuple):
     first_blocked: jax.Array
     state: jax.Array
     advices: jax.Array
+    states: jax.Array
 
 
 class Outcome(NamedTuple):
@@ -229,7 +232,7 @@ def turn(ctx: Context, i: jax.Array, view: View, memory: Memory) -> Outcome:
         return Neighbour(
             exists=exists, gap=jnp.where(exists, gap, FAR), speed=veh.speed[slot],
             accel=veh.accel[slot], driver=_pick(driver, slot),
-            v_max=ctx.v_max(slot, lane[slot]),
+            v_max=ctx.v_max(slot, lane[slot]), state=view.states[slot],
         )  # fmt: skip
 
     # occupation: dens on this edge + nextOccupation beyond it
@@ -302,6 +305,9 @@ def turn(ctx: Context, i: jax.Array, view: View, memory: Memory) -> Outcome:
         i, memory, state_me, advices_me, curr=curr, best=best, leader=leader,
         right=sides[0], left=sides[1], lc=lc_i, dt=dt, request=request,
         request_s=traci.REQUEST_STEPS * dt,
+        first_blocked=neighbour(
+            jnp.maximum(view.first_blocked, 0), view.first_blocked >= 0, 0.0
+        ),
     )  # fmt: skip
     # an empty slot's turn leaves nothing: no messages, and its memory as it
     # was (cleared), so that a vehicle inserted into it starts as SUMO's new
@@ -312,7 +318,8 @@ def turn(ctx: Context, i: jax.Array, view: View, memory: Memory) -> Outcome:
     )
     as_was = Kept(
         memory.speed_gain_probability[i], memory.keep_right_probability[i],
-        memory.look_ahead_speed[i], view.advices,
+        memory.look_ahead_speed[i], view.advices, memory.left_space[i],
+        memory.blocker_length[i],
     )  # fmt: skip
     kept = jax.tree.map(lambda new, old: jnp.where(active_i, new, old), kept, as_was)
     # no changer on its edge (one lane, or changing not allowed): SUMO

@@ -178,7 +178,10 @@ def leader_on(
     reach = ((lane_end - me_at <= dist) & (lane_start_j - me_at <= dist)) | (
         net.lane_internal[own]
     )
-    later = scene.others & (lane != target) & (lane_start_j >= lane_end) & reach
+    # on the path after the target: compared by where the lanes start (in
+    # float32 a start and the target's offset + length can round apart)
+    target_start = net.lane_offset[path, target]
+    later = scene.others & (lane != target) & (lane_start_j > target_start) & reach
     gap = back - me_at - min_gap_i
 
     def within(mask: jax.Array, gaps: jax.Array = gap) -> jax.Array:

@@ -27,6 +27,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from jaxround.lanes import actions as lca
 from jaxround.lanes.decide import Kept, Told
 from jaxround.lanes.params import LaneChangeParams
 from jaxround.lanes.ring_changer import (
@@ -62,13 +63,16 @@ def smallest(advices: jax.Array, more: jax.Array) -> jax.Array:
 
 def _handed_on(out: Outcome, rank: jax.Array) -> tuple[jax.Array, ...]:
     """What a round's turns hand on to the turns after them: the lanes they
-    leave, their registrations as blocked, and the messages whose receiver
-    has its turn later (the others change nothing this step)."""
+    leave, their registrations as blocked, the wishes they keep (read by
+    `saveBlockerLength`), and the messages whose receiver has its turn later
+    (the others change nothing this step)."""
     told = out.told
     later = rank[told.slot] > rank[:, None]  # (M, 4)
     real = later & (~jnp.isnan(told.speed) | (told.bits != 0))
+    wished = jnp.where(out.direction != 0, 0, out.state) & lca.WANTS_LANECHANGE
     return (
         out.to_lane,
+        wished,
         out.blocked,
         jnp.where(out.blocked, out.target, -1),
         jnp.where(real, told.slot, -1),
@@ -111,6 +115,8 @@ def turns_in_rounds(
         last = jnp.argmax(jnp.where(registered, rank[None], -1), axis=1)
         first = jnp.argmin(jnp.where(registered, rank[None], m), axis=1)
         bits, advices = inbox(out.told, rank[:, None] < rank[out.told.slot], m)
+        # the wishes of the turns before (a vehicle that changed has none)
+        wished = jnp.where(out.direction != 0, 0, out.state)
         return View(
             lane=jnp.where(before, out.to_lane[None], ctx.lane[None]),
             done=before,
@@ -118,6 +124,7 @@ def turns_in_rounds(
             first_blocked=jnp.where(anyone, first, -1),
             state=memory.state | bits,
             advices=jax.vmap(smallest)(memory.advices, advices),
+            states=jnp.where(before, wished[None], memory.state[None]),
         )
 
     def one_round(out: Outcome) -> Outcome:
@@ -127,7 +134,7 @@ def turns_in_rounds(
     def alone(i: jax.Array) -> Outcome:
         none = jnp.asarray(-1)
         view = View(ctx.lane, jnp.zeros(m, bool), none, none, memory.state[i],
-                    memory.advices[i])  # fmt: skip
+                    memory.advices[i], memory.state)  # fmt: skip
         return turn(ctx, i, view, memory)
 
     zeros = jax.tree.map(
@@ -137,7 +144,8 @@ def turns_in_rounds(
         state=memory.state,
         kept=Kept(
             memory.speed_gain_probability, memory.keep_right_probability,
-            memory.look_ahead_speed, memory.advices,
+            memory.look_ahead_speed, memory.advices, memory.left_space,
+            memory.blocker_length,
         ),
         to_lane=ctx.lane,
         to_path=veh.path,
@@ -171,6 +179,8 @@ def turns_in_rounds(
         speed_gain_probability=kept.speed_gain_probability,
         keep_right_probability=kept.keep_right_probability,
         look_ahead_speed=kept.look_ahead_speed,
+        left_space=kept.left_space,
+        blocker_length=kept.blocker_length,
         advices=jax.vmap(smallest)(
             jnp.where(moved[:, None], jnp.nan, out.kept.advices), advices
         ),

@@ -56,7 +56,7 @@ def take(ctx: Context, carry: Carry, i: jax.Array) -> tuple[Carry, Outcome]:
     lane, done, last_blocked, first_blocked, mem = carry
     own = ctx.lane[i]
     view = View(lane, done, last_blocked[own], first_blocked[own],
-                mem.state[i], mem.advices[i])  # fmt: skip
+                mem.state[i], mem.advices[i], mem.state)  # fmt: skip
     # the barrier measured faster on the CPU (docs/benchmarks.md, 2026-11-28:
     # 23 against 25-26 ms per call at batch 256); XLA expands it before fusion
     out = jax.lax.optimization_barrier(turn(ctx, i, view, mem))

@@ -56,6 +56,8 @@ class Neighbour(NamedTuple):
         speed, accel: its speed (m/s) and last acceleration (m/s^2).
         driver: its car-following numbers.
         v_max: its `getVehicleMaxSpeed` on its own lane (m/s).
+        state: its `myOwnState` as the turns before left it (int32 bits;
+            `saveBlockerLength` reads its wish).
     """
 
     exists: jax.Array
@@ -64,6 +66,7 @@ class Neighbour(NamedTuple):
     accel: jax.Array
     driver: Driver
     v_max: jax.Array
+    state: jax.Array | int = 0
 
 
 class LaneQ(NamedTuple):
@@ -96,6 +99,11 @@ class Memory:
         look_ahead_speed: `myLookAheadSpeed` (m/s).
         advices: (M, N_ADVICES) `myLCAccelerationAdvices` as next speeds
             (m/s, NaN: empty), for the next step's `patchSpeed`.
+        left_space: `myLeftSpace`, the metres an urgent wish has left on
+            its lane (0: none this step).
+        blocker_length: `myLeadingBlockerLength`, the room (m) it keeps
+            before that end for a vehicle that wants the other way
+            (`jaxround.lanes.blockers`; 0: none).
     """
 
     state: jax.Array
@@ -103,6 +111,8 @@ class Memory:
     keep_right_probability: jax.Array
     look_ahead_speed: jax.Array
     advices: jax.Array
+    left_space: jax.Array
+    blocker_length: jax.Array
 
     @classmethod
     def zeros(cls, n_slots: int) -> Memory:
@@ -113,6 +123,8 @@ class Memory:
             keep_right_probability=zero,
             look_ahead_speed=zero,
             advices=jnp.full((n_slots, N_ADVICES), jnp.nan, jnp.result_type(float)),
+            left_space=zero,
+            blocker_length=zero,
         )
 
 
