@@ -209,14 +209,12 @@ class LaneChanger:
         v_desired = jnp.minimum(
             driver.max_speed, self.arrays.lane_speed[lane] * state.speed_factor
         )
-        stop = blocker_stop_speed(memory, driver, v, v_desired, self.dt)
-        v_min_emergency = jnp.maximum(0.0, v - driver.emergency_decel * self.dt)
+        blocker = blocker_stop_speed(memory, driver, v, v_desired, self.dt)
 
         def patched(v_min: jax.Array, v_max: jax.Array) -> jax.Array:
             return patch_speed(
-                memory, v_min, v_max, v_max, lc.cooperative,
-                blocker_stop=stop, v_min_emergency=v_min_emergency,
-            )  # fmt: skip
+                memory, v_min, v_max, v_max, lc.cooperative, blocker=blocker
+            )
 
         return patched
 

@@ -67,10 +67,11 @@ def save_blocker_length(
 
 def blocker_stop_speed(
     memory: Memory, driver: Driver, v: jax.Array, v_desired: jax.Array, dt: float
-) -> jax.Array:
+) -> tuple[jax.Array, jax.Array]:
     """`_patchSpeed` step #2: the speed (M,) to stop ``MAGIC_OFFSET`` and a
     minGap before the room kept for a blocker (``stopSpeed(v, space)``), NaN
-    where no room is kept or the space is used up.
+    where no room is kept or the space is used up; and the floor braking for
+    it may go down to, ``minNextSpeedEmergency`` (M,).
 
     Args:
         memory: the last changes' ``left_space`` and ``blocker_length``.
@@ -80,4 +81,5 @@ def blocker_stop_speed(
     space = memory.left_space - memory.blocker_length - MAGIC_OFFSET - driver.min_gap
     keeps = (memory.blocker_length != 0) & (space > 0)
     safe = follow.stop_speed(driver, v, jnp.where(keeps, space, 1.0), v_desired, dt)
-    return jnp.where(keeps, safe, jnp.nan)
+    stop = jnp.where(keeps, safe, jnp.nan)
+    return stop, follow.min_next_speed_emergency(driver, v, dt)

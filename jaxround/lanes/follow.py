@@ -117,3 +117,9 @@ def min_next_speed(driver: Driver, v: ArrayLike, dt: float) -> jax.Array:
     (`jaxround.core.command.min_next_speed`, which reads the same two
     fields)."""
     return command.min_next_speed(jnp.asarray(v), driver, dt)
+
+
+def min_next_speed_emergency(driver: Driver, v: ArrayLike, dt: float) -> jax.Array:
+    """`MSCFModel::minNextSpeedEmergency`: braking at emergencyDecel for
+    one step, not below 0."""
+    return jnp.maximum(0.0, jnp.asarray(v) - driver.emergency_decel * dt)

@@ -57,8 +57,7 @@ def patch_speed(
     wanted: jax.Array,
     v_max: jax.Array,
     cooperative_speed: jax.Array | float,
-    blocker_stop: jax.Array | None = None,
-    v_min_emergency: jax.Array | None = None,
+    blocker: tuple[jax.Array, jax.Array] | None = None,
 ) -> jax.Array:
     """The next speed after the lane-change advices, float (M,).
 
@@ -72,14 +71,15 @@ def patch_speed(
         memory: the state and advices set in the previous step's changes.
         v_min, wanted, v_max: (M,) `finalizeSpeed`'s bounds and its speed.
         cooperative_speed: lcCooperativeSpeed (clipped to [0, 1]), scalar or (M,).
-        blocker_stop, v_min_emergency: (M,) the stop before the room kept
-            for a blocker (`jaxround.lanes.blockers.blocker_stop_speed`,
-            NaN: none) and ``minNextSpeedEmergency``: braking for it may
-            go beyond decel, and caps ``v_max`` (None: no room kept).
+        blocker: (stop, v_min_emergency), (M,) each: the stop before the
+            room kept for a blocker (NaN: none) and ``minNextSpeedEmergency``,
+            which braking for it may go down to and which caps ``v_max``
+            (`jaxround.lanes.blockers.blocker_stop_speed`; None: no room).
     """
     got_blocker = jnp.zeros(jnp.shape(wanted), bool)
     blocker_v = jnp.full(jnp.shape(wanted), jnp.inf, jnp.result_type(wanted))
-    if blocker_stop is not None and v_min_emergency is not None:
+    if blocker is not None:
+        blocker_stop, v_min_emergency = blocker
         keeps = ~jnp.isnan(blocker_stop)
         safe = jnp.where(keeps, blocker_stop, jnp.inf)
         v_max = jnp.where(

@@ -61,6 +61,12 @@ def smallest(advices: jax.Array, more: jax.Array) -> jax.Array:
     return jnp.where(jnp.any(at, axis=1), both[jnp.argmax(at, axis=1)], jnp.nan)
 
 
+def _kept_wishes(out: Outcome) -> jax.Array:
+    """int (M,) each turn's own state as later turns read it (a vehicle
+    that changed keeps none: `changed()`)."""
+    return jnp.where(out.direction != 0, 0, out.state)
+
+
 def _handed_on(out: Outcome, rank: jax.Array) -> tuple[jax.Array, ...]:
     """What a round's turns hand on to the turns after them: the lanes they
     leave, their registrations as blocked, the wishes they keep (read by
@@ -69,7 +75,7 @@ def _handed_on(out: Outcome, rank: jax.Array) -> tuple[jax.Array, ...]:
     told = out.told
     later = rank[told.slot] > rank[:, None]  # (M, 4)
     real = later & (~jnp.isnan(told.speed) | (told.bits != 0))
-    wished = jnp.where(out.direction != 0, 0, out.state) & lca.WANTS_LANECHANGE
+    wished = _kept_wishes(out) & lca.WANTS_LANECHANGE
     return (
         out.to_lane,
         wished,
@@ -115,8 +121,6 @@ def turns_in_rounds(
         last = jnp.argmax(jnp.where(registered, rank[None], -1), axis=1)
         first = jnp.argmin(jnp.where(registered, rank[None], m), axis=1)
         bits, advices = inbox(out.told, rank[:, None] < rank[out.told.slot], m)
-        # the wishes of the turns before (a vehicle that changed has none)
-        wished = jnp.where(out.direction != 0, 0, out.state)
         return View(
             lane=jnp.where(before, out.to_lane[None], ctx.lane[None]),
             done=before,
@@ -124,7 +128,7 @@ def turns_in_rounds(
             first_blocked=jnp.where(anyone, first, -1),
             state=memory.state | bits,
             advices=jax.vmap(smallest)(memory.advices, advices),
-            states=jnp.where(before, wished[None], memory.state[None]),
+            states=jnp.where(before, _kept_wishes(out)[None], memory.state[None]),
         )
 
     def one_round(out: Outcome) -> Outcome:

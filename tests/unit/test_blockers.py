@@ -71,15 +71,13 @@ def test_the_stop_before_the_room_brakes_beyond_decel_where_it_must() -> None:
     memory = memory_with_room(16.4570621, 7.5)
     driver = Driver(*(jnp.full(2, x) for x in DRIVER))
     v = jnp.asarray([7.062972, 7.062972])
-    stop = blocker_stop_speed(memory, driver, v, jnp.full(2, 8.33), 0.5)
+    stop, _ = blocker_stop_speed(memory, driver, v, jnp.full(2, 8.33), 0.5)
     assert float(stop[0]) == pytest.approx(3.68498, abs=2e-4)
     assert np.isnan(float(stop[1]))  # no room kept: no stop
     v_min = v - 4.2939 * 0.5  # minNextSpeed, 4.916 m/s
     v_max = jnp.asarray([8.33, 8.33])
     emergency = v - 9.0 * 0.5
-    patched = patch_speed(
-        memory, v_min, v_max, v_max, 1.0, blocker_stop=stop, v_min_emergency=emergency
-    )
+    patched = patch_speed(memory, v_min, v_max, v_max, 1.0, blocker=(stop, emergency))
     assert float(patched[0]) == pytest.approx(float(stop[0]))  # below decel's 4.916
     assert float(patched[1]) == pytest.approx(8.33)
     # the room is gone once the step is prepared and after a change
@@ -95,14 +93,12 @@ def test_a_stop_beyond_emergency_braking_is_not_taken() -> None:
     memory = memory_with_room(13.0, 7.5)
     driver = Driver(*(jnp.full(2, x) for x in DRIVER))
     v = jnp.asarray([7.0, 7.0])
-    stop = blocker_stop_speed(memory, driver, v, jnp.full(2, 8.33), 0.5)
+    stop, _ = blocker_stop_speed(memory, driver, v, jnp.full(2, 8.33), 0.5)
     emergency = v - 9.0 * 0.5
     assert float(stop[0]) < float(emergency[0])
     v_min = v - 4.2939 * 0.5
     v_max = jnp.asarray([8.33, 8.33])
-    patched = patch_speed(
-        memory, v_min, v_max, v_max, 1.0, blocker_stop=stop, v_min_emergency=emergency
-    )
+    patched = patch_speed(memory, v_min, v_max, v_max, 1.0, blocker=(stop, emergency))
     assert float(patched[0]) == pytest.approx(float(v_min[0]))
 
 
