@@ -88,6 +88,12 @@ def route_projections(
     front = project(net, routes, lane, pos_on_lane)  # (R, M)
     _, back_lane, back_on_lane = locate(net, route, jnp.maximum(pos - length, 0.0))
     back = project(net, routes, back_lane, back_on_lane)  # (R, M)
+    # a vehicle turning off whose back is still on the lane both leave leads
+    # twice: on that lane, and as a same-source link leader measured from
+    # where the two internal lanes part (MSLink::getLeaderInfo); the nearer
+    # counts
+    turning_off = jnp.isnan(net.lane_offset[:, lane]) & jnp.isfinite(front)
+    back = jnp.where(turning_off, jnp.fmin(back, front - length), back)
     return front, jnp.where(jnp.isnan(back), front - length, back)
 
 
