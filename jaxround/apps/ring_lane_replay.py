@@ -58,6 +58,9 @@ class SlotBook:
     cfg: ScenarioConfig
     n_slots: int
     slot_of: dict[str, int] = field(default_factory=dict)
+    #: the largest speed factor of the vehicles departed so far (SUMO's
+    #: followers' search; a vehicle departs after the step's changes)
+    fastest: float = 1.0
 
     @classmethod
     def for_steps(cls, cfg: ScenarioConfig, steps: list[StepRecord]) -> SlotBook:
@@ -87,6 +90,8 @@ class SlotBook:
         )  # fmt: skip
         active = np.zeros(self.n_slots, bool)
         active[slots] = ~rec.new
+        if active[slots].any():
+            self.fastest = max(self.fastest, float(rec.speed_factor[~rec.new].max()))
 
         def spread(values, fill=0.0):
             out = np.full(self.n_slots, fill, np.asarray(values).dtype)
@@ -105,6 +110,7 @@ class SlotBook:
             active=jnp.asarray(active), driver=driver,
             speed_factor=jnp.asarray(spread(rec.speed_factor, 1.0)),
             lane_request=jnp.asarray(spread(rec.request, -1)),
+            fastest_departed=jnp.float32(self.fastest),
         )  # fmt: skip
         return veh, prepare_step(memory), slots
 

@@ -55,9 +55,6 @@ from jaxround.lanes.views import Memory
 from jaxround.scenario.config import DriverConfig, ScenarioConfig
 from jaxround.sumo_files.compile import compile_network
 
-#: SUMO's `MSVehicleControl::getMaxSpeedFactor` with its default vType loaded
-#: (speedFactor normc(1, 0.1, 0.2, 2)): the followers' search distance.
-MAX_SPEED_FACTOR = 2.0
 #: `LaneChanger`'s choices for the hold at entries.
 HOLD_MODES = ("parallel", "off", "occupied", "approaching")
 
@@ -125,9 +122,9 @@ def changer_tables(cfg: ScenarioConfig, net_file: str | Path) -> RingLanes:
 
 def changer_arrays(cfg: ScenarioConfig, tables: RingLanes) -> ring_changer.RingArrays:
     """The changer's arrays for a scenario's vTypes (SUMO's followers'
-    search: the fastest speed factor, the smallest of the decelerations)."""
+    search: the smallest of the decelerations and SUMO's default, 4.5)."""
     min_decel = min(cfg.drivers.hv.decel, cfg.drivers.av.decel, 4.5)
-    return ring_changer.RingArrays.from_tables(tables, MAX_SPEED_FACTOR, min_decel)
+    return ring_changer.RingArrays.from_tables(tables, min_decel)
 
 
 def compiled_network(
@@ -247,10 +244,12 @@ class LaneChanger:
             prepare_step(state.lanes.memory), Memory.zeros(active.shape[0]),
         )  # fmt: skip
         driver = self._driver(state, car)
+        departed = jnp.where(state.inserted, state.schedule.speed_factor, 1.0)
         veh = ring_changer.RingVehicles(
             path=state.route, pos=state.pos, speed=state.speed, accel=state.accel,
             active=active, driver=driver, speed_factor=state.speed_factor,
             lane_request=request, entry_hold=hold, merge=merge,
+            fastest_departed=jnp.maximum(jnp.max(departed), 1.0),
         )  # fmt: skip
         return veh, memory
 

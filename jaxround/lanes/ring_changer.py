@@ -70,6 +70,8 @@ class RingVehicles(NamedTuple):
             never).
         merge: the merge link leaders on the target lanes
             (`jaxround.lanes.merge_leaders`; None: none).
+        fastest_departed: float () the largest speed factor of the vehicles
+            departed so far, at least 1 (the followers' search).
     """
 
     path: jax.Array
@@ -82,6 +84,7 @@ class RingVehicles(NamedTuple):
     lane_request: jax.Array | None = None
     entry_hold: jax.Array | None = None
     merge: MergeLeaders | None = None
+    fastest_departed: jax.Array | float = 1.0
 
 
 class Sight(NamedTuple):
@@ -226,7 +229,8 @@ def turn(ctx: Context, i: jax.Array, view: View, memory: Memory) -> Outcome:
     weight = jnp.where(veh.active, ctx.brutto, 0.0)
     occupied = jnp.zeros(n_lanes).at[lane].add(weight)
     scene = Scene(lane=lane, on_lane=on_lane, speed=veh.speed, driver=driver,
-                  others=others, done=view.done)  # fmt: skip
+                  others=others, done=view.done,
+                  fastest_departed=veh.fastest_departed)  # fmt: skip
 
     def neighbour(slot, exists, gap) -> Neighbour:
         return Neighbour(

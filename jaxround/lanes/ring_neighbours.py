@@ -13,9 +13,15 @@ measured to apply them in section 12 there:
   that distance (`MSLane::getLeaderOnConsecutive`, link leaders left out).
 - `follower_on` (`MSLaneChanger::getRealFollower`): the nearest vehicle
   behind on the lane that has not had its turn; failing that, among the
-  vehicles on the lanes upstream (`MSLane::getFollowersOnConsecutive`, to
-  the lanes' braking distance), the one whose secure gap is most violated,
-  one coming over a minor link with its gap floored at 0.
+  vehicles on the lanes upstream (`MSLane::getFollowersOnConsecutive`), the
+  one whose secure gap is most violated, one coming over a minor link with
+  its gap floored at 0. The search examines the lanes leading into the
+  target lane, and goes on upstream of a lane only where the distance to
+  that lane's start is below the target lane's braking distance at the
+  largest speed factor of the vehicles departed so far
+  (``MSLane::getMaximumBrakeDist``, ``MSVehicleControl::vehicleDeparted``)
+  less the candidate's back position on it, plus its minGap: measured on
+  SUMO 1.28 with libsumo's ``getRightFollowers`` (docs/two_lane.md).
 - `roundabout_bonus` (`MSLCHelper::getRoundaboutDistBonus`), on the tables
   of `jaxround.lanes.ring_tables`.
 
@@ -70,32 +76,27 @@ class RingArrays(NamedTuple):
     bonus_inner_here: jax.Array
     upstream_m: jax.Array  # (L, L) [x, y]: y's start to x's start, inf: not upstream
     upstream_minor: jax.Array  # (L, L) [x, y]: a minor link between y and x
-    follower_search: jax.Array  # (L,) the largest `MSLane::getMaximumBrakeDist`
-    # of a lane and its upstream lanes
+    follower_brake: jax.Array  # (L,) `MSLane::getMaximumBrakeDist` at a
+    # speed factor of 1, for the followers' search
 
     @classmethod
-    def from_tables(
-        cls, tables: RingLanes, max_speed_factor: float, min_decel: float
-    ) -> RingArrays:
-        """Args: the tables; SUMO's largest speed factor and smallest decel
-        of the loaded vTypes (`MSVehicleControl`), for the followers' search."""
+    def from_tables(cls, tables: RingLanes, min_decel: float) -> RingArrays:
+        """Args: the tables; SUMO's smallest decel of the vehicles
+        (`MSVehicleControl::getMinDeceleration`), for the followers' search."""
         paths = tables.paths
         f = jnp.result_type(float)
         edge_of = [lid.rsplit("_", 1)[0] for lid in paths.lane_ids]
         edge_rank = {e: r for r, e in enumerate(dict.fromkeys(edge_of))}
-        brake = (tables.lane_speed * max_speed_factor) ** 2 * 0.5 / min_decel
+        brake = tables.lane_speed**2 * 0.5 / min_decel
         start = np.where(np.isnan(paths.path_lane_start), np.inf, paths.path_lane_start)
-        brake_f = np.asarray(jnp.asarray(brake, f))
         n_lanes = len(paths.lane_ids)
-        upstream_m = np.full((n_lanes, n_lanes), np.inf, brake_f.dtype)
+        upstream_m = np.full((n_lanes, n_lanes), np.inf, np.dtype(f))
         upstream_minor = np.zeros((n_lanes, n_lanes), bool)
-        search = brake_f.copy()
         for x, ups in enumerate(tables.upstream_lane):
             for u, y in enumerate(ups):
                 if y >= 0:
                     upstream_m[x, y] = tables.upstream_dist[x, u]
                     upstream_minor[x, y] = tables.upstream_minor[x, u]
-                    search[x] = max(search[x], brake_f[y])
         return cls(
             lane_length=jnp.asarray(paths.lane_length, f),
             lane_speed=jnp.asarray(tables.lane_speed, f),
@@ -122,7 +123,7 @@ class RingArrays(NamedTuple):
             bonus_inner_here=jnp.asarray(tables.bonus_inner_here),
             upstream_m=jnp.asarray(upstream_m, f),
             upstream_minor=jnp.asarray(upstream_minor),
-            follower_search=jnp.asarray(search, f),
+            follower_brake=jnp.asarray(brake, f),
         )
 
 
@@ -135,6 +136,8 @@ class Scene(NamedTuple):
         speed: m/s; driver: `Driver` of (M,) arrays.
         others: active and not the candidate.
         done: had its turn this step.
+        fastest_departed: float () the largest speed factor of the vehicles
+            departed so far, at least 1 (``MSVehicleControl::getMaxSpeedFactor``).
     """
 
     lane: jax.Array
@@ -143,6 +146,7 @@ class Scene(NamedTuple):
     driver: Driver
     others: jax.Array
     done: jax.Array
+    fastest_departed: jax.Array | float = 1.0
 
 
 def leader_on(
@@ -205,10 +209,15 @@ def follower_on(
     back_i = on_lane[i] - driver.length[i]
     same = scene.others & ~scene.done & (lane == target) & (on_lane <= on_lane[i])
     d_same = jnp.where(same, back_i - on_lane - driver.min_gap, jnp.inf)
-    search = net.follower_search[target] - back_i
-    # vehicle j on a lane upstream of the target, within the search
+    search = (
+        net.follower_brake[target] * jnp.square(scene.fastest_departed)
+        - back_i + driver.min_gap[i]
+    )  # fmt: skip
+    # vehicle j on a lane upstream of the target: the lanes into the target
+    # are examined, the lanes before a lane only within the search
     up_dist = net.upstream_m[target, lane]  # (M,) inf: not upstream
-    reached = up_dist - net.lane_length[lane] < search
+    before = up_dist - net.lane_length[lane]  # to the start of the lane after
+    reached = (before <= 0.0) | (before < search)
     agap = up_dist - on_lane + back_i - driver.min_gap
     agap = jnp.where(net.upstream_minor[target, lane], jnp.maximum(agap, 0.0), agap)
     ok = jnp.isfinite(up_dist) & reached & scene.others
