@@ -22,11 +22,21 @@ SUMO 1.28 (6.8 m/s^2, beyond its decel of 4.3), and both change in that
 step; with the blocker's lane-change mode 0 (no wish to change), SUMO drives
 it on at 5.89 m/s, as the step did without the room.
 
-Not ported: when the blocker does not fit in front of ego, SUMO asks the
-blocker to keep ego's room instead, and ego keeps it anyway only if the
-blocker cannot (2023: ``canSaveBlockerLength`` on the blocker's own left
-space) and ego's lane has no relief connection; here ego keeps it in that
-case. Element-wise over (...) arrays.
+Ego keeps the room only where the blocker fits in front of it: its
+lengthWithGap and a minGap within ego's left space less POSITION_EPS and
+ego's braking distance (measured on SUMO 1.28). At 38.5 s of the same hour
+an AV with 11.09 m left, at 5.55 m/s (2.33 m to brake), keeps no room for
+a 5 m human driver beside it that wants its lane: it slows to 4.0755 m/s,
+as it does with the blocker's lane-change mode 0, where keeping the room
+gives 3.40; with the blocker shortened by libsumo's ``setLength`` it keeps
+the room up to a length of 3.6 m and not from 3.7 m on (SUMO's sources of
+2021-2023, without the minGap, would keep it up to 6.26 m).
+
+Not ported: a blocker that does not fit is asked to keep ego's room
+instead (``saveBlockerLength(length)`` on the blocker), which counts only
+where the blocker's own wish is urgent; SUMO 1.28 did not keep the room
+for ego in the case above, as the 2023 source would have. Element-wise
+over (...) arrays.
 """
 
 from __future__ import annotations
@@ -34,6 +44,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from jaxround.core.junction import brake_gap as euler_brake_gap
 from jaxround.lanes import follow
 from jaxround.lanes.follow import Driver
 from jaxround.lanes.views import Memory, Neighbour
@@ -44,10 +55,19 @@ from jaxround.lanes.views import Memory, Neighbour
 #: m/s, is libsumo's ``getStopSpeed`` at ``myLeftSpace - 7.5 - 2.5 - 0.1``
 #: (16.45706 - 10.1 m; with 1 m it would be 2.97 m/s).
 MAGIC_OFFSET = 0.1
+#: SUMO's ``POSITION_EPS`` (m).
+POSITION_EPS = 0.1
 
 
 def save_blocker_length(
-    blocker: Neighbour, *, counter: int, kept: jax.Array
+    blocker: Neighbour,
+    *,
+    counter: int,
+    kept: jax.Array,
+    ego: Driver,
+    v: jax.Array,
+    left_space: jax.Array,
+    dt: float,
 ) -> jax.Array:
     """``saveBlockerLength(blocker, lcaCounter)``: the room (m) the vehicle
     keeps before its lane's end after looking at ``blocker``, at least
@@ -55,13 +75,16 @@ def save_blocker_length(
 
     A blocker counts if it wants ``counter`` (the LEFT or RIGHT bit of the
     direction opposite to the vehicle's wish) in its own state as the turns
-    before left it. Whether it fits in front (``lengthWithGap <= leftSpace -
-    brakeGap(v, decel, 0)``) or not, the vehicle keeps its room (see the
-    module's note).
+    before left it, and fits in front: its lengthWithGap and ego's minGap
+    within ``left_space - POSITION_EPS - brakeGap(v, decel, 0)`` (the
+    module's note). ``ego``, ``v``: the vehicle's numbers and speed.
     """
     wants_counter = blocker.exists & ((jnp.asarray(blocker.state) & counter) != 0)
+    brake = euler_brake_gap(v, ego.decel, 0.0, dt)
+    potential = left_space - POSITION_EPS - brake - ego.min_gap
+    fits = blocker.driver.length_with_gap <= potential
     return jnp.where(
-        wants_counter, jnp.maximum(blocker.driver.length_with_gap, kept), kept
+        wants_counter & fits, jnp.maximum(blocker.driver.length_with_gap, kept), kept
     )
 
 

@@ -211,7 +211,10 @@ def wants_change(
     reserved = jnp.asarray(blocker_kept, float_dtype)
     for blocker in (neigh_lead, first_blocked):
         if blocker is not None:
-            reserved = save_blocker_length(blocker, counter=counter, kept=reserved)
+            reserved = save_blocker_length(
+                blocker, counter=counter, kept=reserved, ego=ego.driver,
+                v=ego.speed, left_space=left_space, dt=dt,
+            )  # fmt: skip
     reserved = jnp.where(urgent_now, reserved, blocker_kept)
     lanes_to_go = jnp.maximum(abs_offset, 1.0)
     per_lane = left_space / jnp.maximum(look_ahead, NUMERICAL_EPS) / lanes_to_go
