@@ -57,7 +57,7 @@ def run_jax(
     driver: DriverSpec | None = None,
     cap_s: float | None = None,
     *,
-    crossing_leaders: bool = False,
+    crossing_leaders: bool = True,
 ) -> list[dict[str, Any]]:
     """Run the schedules of `seeds` in JAX, all seeds in one vmapped batch,
     each until its vehicles have left or `cap_s` (default: the episode), with
@@ -194,7 +194,7 @@ def parity_report(
     controller: str | None = None,
     max_vehicles: int | str | None = None,
     drain_s: float | None = None,
-    crossing_leaders: bool = False,
+    crossing_leaders: bool = True,
 ) -> dict[str, Any]:
     """The `jaxround parity --json` object for the schedules of `seeds`.
 
@@ -208,7 +208,7 @@ def parity_report(
         drain_s: seconds after the demand horizon both simulators may go on
             (the cap); None: `DRAIN_S`.
         crossing_leaders: JAX's link leaders on crossing internal lanes
-            (`jaxround.envs.roundabout.make`; off by default).
+            (`jaxround.envs.roundabout.make`; on by default).
 
     Returns:
         The means of both simulators ("jax", "sumo": `class_metrics` over the

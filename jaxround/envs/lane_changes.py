@@ -128,11 +128,11 @@ def changer_arrays(cfg: ScenarioConfig, tables: RingLanes) -> ring_changer.RingA
 
 
 def compiled_network(
-    cfg: ScenarioConfig, net_file: str | Path, crossing_leaders: bool = False
+    cfg: ScenarioConfig, net_file: str | Path, crossing_leaders: bool = True
 ) -> tuple[CompiledNetwork, LaneChanger | None]:
     """The step's network of a scenario, and its lane changer where a road has
     two lanes (routes are then lane paths: `jaxround.lanes.ring_network`);
-    the crossings' link leaders only with `crossing_leaders`."""
+    the crossings' link leaders unless `crossing_leaders` is False."""
     if cfg.network.single_lane:
         return compile_network(net_file, cfg.n_legs), None
     network, _ = compile_lane_network(net_file, cfg.n_legs)

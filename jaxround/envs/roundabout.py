@@ -376,7 +376,7 @@ def make(
     episode_s: float | None = None,
     workdir: str | Path | None = None,
     *,
-    crossing_leaders: bool = False,
+    crossing_leaders: bool = True,
 ) -> tuple[RoundaboutEnv, EnvParams]:
     """Build the environment of a scenario: its network is compiled by netconvert.
 
@@ -387,7 +387,8 @@ def make(
             road holds.
         episode_s: episode length; default demand horizon + 300 s.
         workdir: where to write the SUMO network; a cache folder if None.
-        crossing_leaders: link leaders where internal lanes cross (docs/two_lane.md).
+        crossing_leaders: link leaders where internal lanes cross, as SUMO's
+            (docs/two_lane.md); False leaves them out.
 
     Returns:
         (env, default params).

@@ -288,9 +288,9 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     slots_option(p)
     drain_option(p)
     p.add_argument(
-        "--crossing-leaders", action="store_true",
+        "--crossing-leaders", action=argparse.BooleanOptionalAction, default=True,
         help="two-lane roads: JAX's link leaders on the internal lanes that "
-        "cross at a left entry, as SUMO's (off by default; docs/two_lane.md)",
+        "cross at a left entry, as SUMO's (on by default; docs/two_lane.md)",
     )  # fmt: skip
     p.add_argument(
         "--saturation", action="store_true",
