@@ -123,7 +123,7 @@ SLOW_FILES = (
     "tests/sumo/test_conflicts_sumo.py",  # 70
     "tests/sumo/test_lc2013_jax.py",  # 65
     "tests/sumo/test_ring_changer_traffic.py",  # 65
-    "tests/sumo/test_crossing_leaders.py",  # 65: 10 minutes of two lanes, the option on
+    "tests/sumo/test_crossing_leaders.py",  # 65: 10 minutes of two lanes
     "tests/unit/test_rollout.py",  # 55
     "tests/sumo/test_controller.py",  # 55
     "tests/integrations/test_gymnax_env.py",  # 50

@@ -206,10 +206,16 @@ def back_projection(
 
     SUMO follows a leader as long as any part of it occupies a lane ahead on
     the follower's route: a vehicle turning off still leads until its back
-    has left the shared lane.
+    has left the shared lane, and while its back is on that lane it leads
+    as a same-source link leader too, from where the two internal lanes
+    part (``MSLink::getLeaderInfo``): the nearer counts.
     """
     _, lane, pos_on_lane = locate(net, route, jnp.maximum(pos - length, 0.0))
-    return project(net, route, lane, pos_on_lane)
+    back = project(net, route, lane, pos_on_lane)
+    _, front_lane, front_on_lane = locate(net, route, pos)
+    front = project(net, route, front_lane, front_on_lane)
+    turning_off = jnp.isnan(net.lane_offset[route][:, front_lane]) & jnp.isfinite(front)
+    return jnp.where(turning_off, jnp.fmin(back, front - length), back)
 
 
 def leaders(

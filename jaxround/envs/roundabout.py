@@ -387,8 +387,7 @@ def make(
             road holds.
         episode_s: episode length; default demand horizon + 300 s.
         workdir: where to write the SUMO network; a cache folder if None.
-        crossing_leaders: link leaders where internal lanes cross, as SUMO's
-            (docs/two_lane.md); False leaves them out.
+        crossing_leaders: SUMO's link leaders where internal lanes cross (False: none).
 
     Returns:
         (env, default params).

@@ -29,8 +29,8 @@ an AV with 11.09 m left, at 5.55 m/s (2.33 m to brake), keeps no room for
 a 5 m human driver beside it that wants its lane: it slows to 4.0755 m/s,
 as it does with the blocker's lane-change mode 0, where keeping the room
 gives 3.40; with the blocker shortened by libsumo's ``setLength`` it keeps
-the room up to a length of 3.6 m and not from 3.7 m on (SUMO's sources of
-2021-2023, without the minGap, would keep it up to 6.26 m).
+the room up to a length of 3.6 m and not from 3.7 m on, where the sources
+read (2021-2023), without the minGap, would keep it up to 6.16 m or 6.26 m.
 
 Not ported: a blocker that does not fit is asked to keep ego's room
 instead (``saveBlockerLength(length)`` on the blocker), which counts only

@@ -52,12 +52,13 @@ def test_each_left_entry_crosses_the_outer_ring_lane_going_on(tmp_path: Path) ->
 @pytest.fixture(scope="module")
 def crossing_env():
     cfg = load_config("two_lane")
-    return make(cfg, max_vehicles=TWO_LANE_SLOTS, crossing_leaders=True)
+    return make(cfg, max_vehicles=TWO_LANE_SLOTS)
 
 
-def test_the_option_is_off_by_default_and_runs_when_on(crossing_env) -> None:
+def test_the_crossing_is_on_by_default_and_runs(crossing_env) -> None:
     cfg = load_config("two_lane")
-    assert make(cfg, max_vehicles=TWO_LANE_SLOTS)[0].net.crossing is None
+    off = make(cfg, max_vehicles=TWO_LANE_SLOTS, crossing_leaders=False)[0]
+    assert off.net.crossing is None
     env, params = crossing_env
     assert env.net.crossing is not None
     schedule = env.schedule_from_numpy(make_schedule(cfg, seed=0))
