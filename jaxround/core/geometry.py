@@ -214,6 +214,22 @@ def back_projection(
     back = project(net, route, lane, pos_on_lane)
     _, front_lane, front_on_lane = locate(net, route, pos)
     front = project(net, route, front_lane, front_on_lane)
+    return nearer_back(net, route, front_lane, front, back, length)
+
+
+def nearer_back(
+    net: NetArrays,
+    route: jax.Array,
+    front_lane: jax.Array,
+    front: jax.Array,
+    back: jax.Array,
+    length: jax.Array,
+) -> jax.Array:
+    """``back`` (R, M) along the routes ``route`` (R,), where a vehicle
+    whose front lies on the sibling of a route's lane (``front_lane`` (M,),
+    ``front`` its `project`) has its back on the lane both leave: the nearer
+    of that back and its back as a same-source link leader, ``front -
+    length`` (``MSLink::getLeaderInfo``)."""
     turning_off = jnp.isnan(net.lane_offset[route][:, front_lane]) & jnp.isfinite(front)
     return jnp.where(turning_off, jnp.fmin(back, front - length), back)
 

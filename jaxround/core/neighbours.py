@@ -38,7 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxround.core.geometry import NetArrays, locate, project
+from jaxround.core.geometry import NetArrays, locate, nearer_back, project
 from jaxround.core.link_leaders import (
     CurrentLink,
     LinkTable,
@@ -88,12 +88,8 @@ def route_projections(
     front = project(net, routes, lane, pos_on_lane)  # (R, M)
     _, back_lane, back_on_lane = locate(net, route, jnp.maximum(pos - length, 0.0))
     back = project(net, routes, back_lane, back_on_lane)  # (R, M)
-    # a vehicle turning off whose back is still on the lane both leave leads
-    # twice: on that lane, and as a same-source link leader measured from
-    # where the two internal lanes part (MSLink::getLeaderInfo); the nearer
-    # counts
-    turning_off = jnp.isnan(net.lane_offset[:, lane]) & jnp.isfinite(front)
-    back = jnp.where(turning_off, jnp.fmin(back, front - length), back)
+    # a vehicle turning off leads as a same-source link leader too
+    back = nearer_back(net, routes, lane, front, back, length)
     return front, jnp.where(jnp.isnan(back), front - length, back)
 
 
