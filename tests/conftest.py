@@ -92,7 +92,7 @@ def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
 #: ending the run with a long file.
 SLOW_FILES = (
     "tests/e2e/test_two_lane_agents.py",  # 655: training, evaluations, a search
-    "tests/unit/test_ring_turns.py",  # 495: 4 min of two lanes, three gradients
+    "tests/unit/test_ring_turns.py",  # 270 before a gradient compile less: 4 min
     "tests/e2e/test_pipeline.py",  # 275
     "tests/e2e/test_notebooks.py",  # 255
     "tests/sumo/test_lane_requests.py",  # 210: three SUMO runs and replays

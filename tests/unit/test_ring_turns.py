@@ -80,8 +80,8 @@ def assert_same_numbers(got, want) -> None:
 
 def test_the_vehicles_turns_are_every_slots_turns(episode) -> None:
     """On every eighth of the last 200 steps' states, the loop and the scan
-    give the same changes and memory (floats to their rounding), and the same
-    gradient (the loop's is the scan's, recomputed)."""
+    give the same changes and memory (floats to their rounding), and the
+    CPU's changer has a finite gradient, the scan's."""
     env, params, (states, _, _) = episode
     changer = env.lane_changer
     lc = params.lane_change
@@ -120,13 +120,14 @@ def test_the_vehicles_turns_are_every_slots_turns(episode) -> None:
         )
         return jnp.sum(changes.pos) + jnp.sum(after.look_ahead_speed)
 
-    grad_scan = jax.jit(jax.grad(lambda v: summary(ring_turns.turns_of_every_slot, v)))
-    want = np.asarray(grad_scan(veh.speed))
-    assert np.any(want[np.asarray(veh.active)] != 0)
-    # the CPU's changer; the GPUs' (`ring_rounds`) has the same backward pass,
-    # `ring_turns.scan_gradient` wraps both (a third compile, 30-50 s of CI)
+    # the CPU's changer; its backward pass is the scan's pullback at the
+    # same inputs (`ring_turns.scan_gradient`, which the GPUs' `ring_rounds`
+    # shares): taking the scan's own gradient as well compiled the same
+    # backward twice, 50 s of CI for an equality by construction
     grad = jax.jit(jax.grad(lambda v: summary(ring_batches.change_lanes, v)))
-    np.testing.assert_allclose(np.asarray(grad(veh.speed)), want, rtol=1e-6)
+    got = np.asarray(grad(veh.speed))
+    assert np.all(np.isfinite(got))
+    assert np.any(got[np.asarray(veh.active)] != 0)
 
 
 @pytest.mark.parametrize("batch", [7])
