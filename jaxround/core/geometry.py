@@ -234,6 +234,23 @@ def nearer_back(
     return jnp.where(turning_off, jnp.fmin(back, front - length), back)
 
 
+def past_the_parting(
+    net: NetArrays, route: jax.Array, pos: jax.Array, length: jax.Array
+) -> jax.Array:
+    """bool (M_i, M_j): vehicle j's back lies on the internal lane that parts
+    from a lane of i's route (it leads i only as a same-source link leader,
+    `project`), and i's front has passed where the two part. SUMO then no
+    longer asks that link for leaders (``MSLink::getLeaderInfo``: the foe
+    lane is skipped while ``distToCrossing < 0`` outside lane changing)."""
+    _, back_lane, _ = locate(net, route, jnp.maximum(pos - length, 0.0))
+    sibling = net.lane_sibling[back_lane]  # (M_j,)
+    other = jnp.maximum(sibling, 0)
+    offsets = net.lane_offset[route]  # (M_i, L)
+    parting = offsets[:, other] + net.lane_diverge[other][None, :]  # nan: off
+    off_route = jnp.isnan(offsets[:, back_lane]) & (sibling >= 0)[None, :]
+    return off_route & (pos[:, None] > parting)
+
+
 def leaders(
     proj: jax.Array, pos: jax.Array, active: jax.Array, length: jax.Array
 ) -> tuple[jax.Array, jax.Array]:

@@ -34,7 +34,7 @@ import jax.numpy as jnp
 from jaxround.core import command as traci
 from jaxround.core import idm
 from jaxround.core.crossing_leaders import crossing_leader_speed
-from jaxround.core.geometry import NetArrays, leaders, locate
+from jaxround.core.geometry import NetArrays, leaders, locate, past_the_parting
 from jaxround.core.insertion import STOP_OFFSET
 from jaxround.core.junction import brake_gap
 from jaxround.core.link_leaders import link_leader
@@ -132,6 +132,7 @@ def own_leader(
     reach (planMoveInternal meets a lane's last vehicle only on its lanes)."""
     route, pos, speed = veh.route, veh.pos, veh.speed
     fronts = (tables.back + car.length)[route]  # (M, M) along each route
+    fronts = jnp.where(past_the_parting(net, route, pos, car.length), jnp.nan, fronts)
     leader, gap = leaders(fronts, pos, veh.active, car.length)
     v_leader = jnp.where(leader >= 0, speed[jnp.maximum(leader, 0)], 0.0)
     v_follow = idm.idm_follow_speed(

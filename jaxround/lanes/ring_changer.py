@@ -230,7 +230,7 @@ def turn(ctx: Context, i: jax.Array, view: View, memory: Memory) -> Outcome:
     occupied = jnp.zeros(n_lanes).at[lane].add(weight)
     scene = Scene(lane=lane, on_lane=on_lane, speed=veh.speed, driver=driver,
                   others=others, done=view.done,
-                  fastest_departed=veh.fastest_departed)  # fmt: skip
+                  fastest_departed=veh.fastest_departed, path=veh.path)  # fmt: skip
 
     def neighbour(slot, exists, gap) -> Neighbour:
         return Neighbour(

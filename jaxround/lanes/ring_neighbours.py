@@ -7,15 +7,22 @@ measured to apply them in section 12 there:
 
 - `leader_on` (`MSLaneChanger::getRealLeader`): the nearest vehicle ahead
   on the lane, as the vehicles ahead of the candidate left it; failing
-  that, one whose back is still on the lane; failing that, if the lane ends
+  that, one whose back is still on the lane (it came through the lane:
+  not the other lane of a merge); failing that, if the lane ends
   within ``brakeGap(v) + minGap`` (or the candidate is on an internal lane),
   the nearest vehicle on the lanes the path goes on to that begin within
-  that distance (`MSLane::getLeaderOnConsecutive`, link leaders left out).
+  that distance (`MSLane::getLeaderOnConsecutive`), or on an internal lane
+  that leaves the same lane as one of them, not yet past where the two
+  part (`MSLink::getLeaderInfo`'s same-source link leaders; the sagitta of
+  curved links left out; the merges' link leaders are
+  `jaxround.lanes.merge_leaders`').
 - `follower_on` (`MSLaneChanger::getRealFollower`): the nearest vehicle
   behind on the lane that has not had its turn; failing that, among the
   vehicles on the lanes upstream (`MSLane::getFollowersOnConsecutive`), the
   one whose secure gap is most violated, one coming over a minor link with
-  its gap floored at 0. The search examines the lanes leading into the
+  its gap floored at 0, or one turning off onto the other internal lane
+  that leaves the lane before the target, its back still on that lane
+  (a partial occupant there). The search examines the lanes leading into the
   target lane, and goes on upstream of a lane only where the distance to
   that lane's start is below the target lane's braking distance at the
   largest speed factor of the vehicles departed so far
@@ -78,6 +85,8 @@ class RingArrays(NamedTuple):
     upstream_minor: jax.Array  # (L, L) [x, y]: a minor link between y and x
     follower_brake: jax.Array  # (L,) `MSLane::getMaximumBrakeDist` at a
     # speed factor of 1, for the followers' search
+    lane_sibling: jax.Array  # (L,) the internal lane leaving the same lane, -1
+    lane_diverge: jax.Array  # (L,) where the two part, from the lane's start
 
     @classmethod
     def from_tables(cls, tables: RingLanes, min_decel: float) -> RingArrays:
@@ -124,6 +133,8 @@ class RingArrays(NamedTuple):
             upstream_m=jnp.asarray(upstream_m, f),
             upstream_minor=jnp.asarray(upstream_minor),
             follower_brake=jnp.asarray(brake, f),
+            lane_sibling=jnp.asarray(tables.lane_sibling, jnp.int32),
+            lane_diverge=jnp.asarray(tables.lane_diverge, f),
         )
 
 
@@ -138,6 +149,8 @@ class Scene(NamedTuple):
         done: had its turn this step.
         fastest_departed: float () the largest speed factor of the vehicles
             departed so far, at least 1 (``MSVehicleControl::getMaxSpeedFactor``).
+        path: int (M,) each vehicle's lane path before the step's changes,
+            for the lane its back came through (None: any lane upstream).
     """
 
     lane: jax.Array
@@ -147,6 +160,7 @@ class Scene(NamedTuple):
     others: jax.Array
     done: jax.Array
     fastest_departed: jax.Array | float = 1.0
+    path: jax.Array | None = None
 
 
 def leader_on(
@@ -177,6 +191,13 @@ def leader_on(
         scene.others & (lane != target) & jnp.isfinite(to_start)
         & (back_on_target < net.lane_length[target])
     )  # fmt: skip
+    if scene.path is not None:
+        # only on the lane it came through (not the other of a merge): the
+        # target on its path, or its lane off it (changed this step)
+        partly = partly & (
+            jnp.isfinite(net.lane_offset[scene.path, target])
+            | jnp.isnan(net.lane_offset[scene.path, lane])
+        )
     dist = follow.brake_gap(me, scene.speed[i], dt) + min_gap_i
     lane_start_j = net.lane_offset[path, lane]
     reach = ((lane_end - me_at <= dist) & (lane_start_j - me_at <= dist)) | (
@@ -187,6 +208,22 @@ def leader_on(
     target_start = net.lane_offset[path, target]
     later = scene.others & (lane != target) & (lane_start_j > target_start) & reach
     gap = back - me_at - min_gap_i
+    # on the internal lane that leaves the same lane as one of the path's
+    # from the target on, its back not yet past where the two part: a
+    # same-source link leader, its back as far before that lane's parting
+    # point as before its own; none once i is its length past that point
+    parts_from = jnp.maximum(net.lane_sibling[lane], 0)  # (M,)
+    its_start = net.lane_offset[path, parts_from]  # nan: not on the path
+    parting = its_start + net.lane_diverge[parts_from]
+    back_to_parting = on_lane - driver.length - net.lane_diverge[lane]
+    diverging = (
+        scene.others & (net.lane_sibling[lane] >= 0) & (back_to_parting < 0.0)
+        & (its_start >= target_start) & (me_at - parting <= driver.length[i])
+        & (((lane_end - me_at <= dist) & (its_start - me_at <= dist))
+           | net.lane_internal[own])
+    )  # fmt: skip
+    later = later | diverging
+    gap = jnp.where(diverging, parting + back_to_parting - me_at - min_gap_i, gap)
 
     def within(mask: jax.Array, gaps: jax.Array = gap) -> jax.Array:
         return jnp.where(mask, gaps, jnp.inf)
@@ -221,7 +258,14 @@ def follower_on(
     agap = up_dist - on_lane + back_i - driver.min_gap
     agap = jnp.where(net.upstream_minor[target, lane], jnp.maximum(agap, 0.0), agap)
     ok = jnp.isfinite(up_dist) & reached & scene.others
-    agap_j = jnp.where(ok, agap, jnp.inf)  # (M,)
+    # turning off onto the other internal lane that leaves the target's lane,
+    # its back still on that lane: a partial occupant the search meets there
+    beside = (
+        scene.others & (net.lane_sibling[lane] == target) & (on_lane < driver.length)
+    )
+    agap_j = jnp.where(  # (M,)
+        ok, agap, jnp.where(beside, back_i - on_lane - driver.min_gap, jnp.inf)
+    )
     missing = follow.secure_gap(driver, scene.speed, scene.speed[i]) - agap_j
     _, up_slot = first_min(jnp.where(jnp.isfinite(agap_j), -missing, jnp.inf))
     has_up = jnp.isfinite(agap_j[up_slot])

@@ -61,19 +61,10 @@ def compile_lane_network(
     """
     paths = lane_paths(net_file, n_legs)
     net = sumolib.net.readNet(str(net_file), withInternal=True)
-    lanes = [net.getLane(lid) for lid in paths.lane_ids]
     index = {lid: k for k, lid in enumerate(paths.lane_ids)}
     lane_length = paths.lane_length
-    lane_next = -np.ones(len(lanes), np.int32)
-    for k, ln in enumerate(lanes):
-        if paths.lane_internal[k]:
-            outs = ln.getOutgoing()
-            if len(outs) != 1:
-                raise NetworkError(f"{net_file}: internal lane {ln.getID()} forks")
-            lane_next[k] = index[outs[0].getToLane().getID()]
-    shapes = tuple(np.asarray(ln.getShape(), np.float64) for ln in lanes)
-    sibling, diverge, partner, converge = internal_geometry(
-        lanes, shapes, lane_length, lane_next
+    lane_next, shapes, (sibling, diverge, partner, converge) = internal_lanes(
+        net_file, net, paths
     )
 
     entries = _entries(net_file, net, paths, index, partner)
@@ -94,7 +85,9 @@ def compile_lane_network(
         n_legs=paths.n_legs,
         lane_ids=paths.lane_ids,
         lane_length=lane_length,
-        lane_speed=np.array([ln.getSpeed() for ln in lanes], np.float64),
+        lane_speed=np.array(
+            [net.getLane(lid).getSpeed() for lid in paths.lane_ids], np.float64
+        ),
         lane_next=lane_next,
         lane_sibling=sibling,
         lane_diverge=diverge,
@@ -124,9 +117,33 @@ def compile_lane_network(
             ],
             shapes,
             lane_length,
-            np.array([ln.getWidth() for ln in lanes]),
+            np.array([net.getLane(lid).getWidth() for lid in paths.lane_ids]),
         ),
     ), paths
+
+
+def internal_lanes(
+    net_file: str | Path, net: sumolib.net.Net, paths: LanePaths
+) -> tuple[np.ndarray, tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
+    """The internal lanes of ``paths``' lanes (L, in their order): int (L,)
+    the lane each leads onto (-1: a normal lane), the lanes' shapes, and
+    `compile.internal_geometry` (sibling, diverge, partner, converge).
+
+    Raises:
+        NetworkError: an internal lane with more than one outgoing lane.
+    """
+    lanes = [net.getLane(lid) for lid in paths.lane_ids]
+    index = {lid: k for k, lid in enumerate(paths.lane_ids)}
+    lane_next = -np.ones(len(lanes), np.int32)
+    for k, ln in enumerate(lanes):
+        if paths.lane_internal[k]:
+            outs = ln.getOutgoing()
+            if len(outs) != 1:
+                raise NetworkError(f"{net_file}: internal lane {ln.getID()} forks")
+            lane_next[k] = index[outs[0].getToLane().getID()]
+    shapes = tuple(np.asarray(ln.getShape(), np.float64) for ln in lanes)
+    geometry = internal_geometry(lanes, shapes, paths.lane_length, lane_next)
+    return lane_next, shapes, geometry
 
 
 def _entries(

@@ -47,6 +47,7 @@ from jaxround.lanes.best_lanes import (
     route_rows,
 )
 from jaxround.lanes.paths import LanePaths, lane_paths
+from jaxround.lanes.ring_network import internal_lanes
 from jaxround.scenario.edges import route_edges
 
 #: `getRoundaboutDistBonus` looks no further (m).
@@ -83,6 +84,9 @@ class RingLanes:
         upstream_lane: int (L, U) lanes that lead into the lane.
         upstream_dist: float (L, U) from their start to the lane's start (m).
         upstream_minor: bool (L, U) a minor link lies between.
+        lane_sibling: int (L,) the other internal lane leaving the same lane
+            (-1: none); lane_diverge: float (L,) where they part, from the
+            lane's start (m, `compile.internal_geometry`).
     """
 
     paths: LanePaths
@@ -104,6 +108,8 @@ class RingLanes:
     upstream_lane: np.ndarray
     upstream_dist: np.ndarray
     upstream_minor: np.ndarray
+    lane_sibling: np.ndarray
+    lane_diverge: np.ndarray
 
 
 def ring_lanes(net_file: str | Path, driver: LookAheadDriver) -> RingLanes:
@@ -113,6 +119,7 @@ def ring_lanes(net_file: str | Path, driver: LookAheadDriver) -> RingLanes:
     net = sumolib.net.readNet(str(net_file), withInternal=True)
     index = {lid: k for k, lid in enumerate(paths.lane_ids)}
     lanes = [net.getLane(lid) for lid in paths.lane_ids]
+    _, _, (sibling, diverge, _, _) = internal_lanes(net_file, net, paths)
     roundabout_edges = {e for r in net.getRoundabouts() for e in r.getEdges()}
     lane_roundabout = np.array(
         [_is_roundabout(net, ln, roundabout_edges) for ln in lanes]
@@ -216,6 +223,8 @@ def ring_lanes(net_file: str | Path, driver: LookAheadDriver) -> RingLanes:
         upstream_lane=upstream_lane,
         upstream_dist=upstream_dist,
         upstream_minor=upstream_minor,
+        lane_sibling=sibling,
+        lane_diverge=diverge,
     )
 
 
