@@ -25,7 +25,9 @@ observation row. An update is
 The roundabout batch is split over the local devices (`NamedSharding` over a
 1-D mesh named "batch"); with one device this is a no-op. Running
 `update_chunk` chunks one after the other gives bit-identical results to
-`train`: both scan the same update.
+`train` at XLA's default optimisation: both scan the same update. (With
+``JAX_DISABLE_MOST_OPTIMIZATIONS=1`` the two programs may round a gradient
+in the last bit differently.)
 """
 
 from __future__ import annotations
