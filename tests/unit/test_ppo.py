@@ -455,7 +455,7 @@ CHUNKS = """
 import json, sys
 import jax, numpy as np
 from agents.ppo import Trainer
-from tests.conftest import QUICK_ENV
+from tests.conftest import tree_equal
 from tests.unit.test_ppo import tiny_config
 
 trainer = Trainer(tiny_config())
@@ -533,7 +533,7 @@ import json, sys
 import jax, numpy as np
 from agents.ppo import Trainer
 from jaxround.scenario.config import ConfigError
-from tests.conftest import QUICK_ENV
+from tests.conftest import tree_equal
 from tests.unit.test_ppo import tiny_config
 
 assert jax.device_count() == 2, jax.devices()
