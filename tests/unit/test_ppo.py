@@ -488,6 +488,17 @@ print(json.dumps({
 """
 
 
+def run_script(script: str, env: dict[str, str]) -> dict[str, Any]:
+    """Run ``python -c script`` from the repository root with ``env``; the
+    JSON object its last line of output prints."""
+    done = subprocess.run(
+        [sys.executable, "-c", script],
+        cwd=ROOT, env=env, capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
 def test_chunks_equal_the_whole_run() -> None:
     """`train(key)` in one program and `init` + `update_chunk(1)` call by call
     (as the CLI runs) give bit-identical parameters, states and metrics.
@@ -495,13 +506,7 @@ def test_chunks_equal_the_whole_run() -> None:
     Checked at XLA's full optimisation, as a user runs both: with most
     optimisations off (the tests' quick mode) XLA may round one layer's
     gradient differently in the two programs (last-bit differences)."""
-    env = {**os.environ, QUICK_ENV: "0"}
-    done = subprocess.run(
-        [sys.executable, "-c", CHUNKS],
-        cwd=ROOT, env=env, capture_output=True, text=True, timeout=600,
-    )  # fmt: skip
-    assert done.returncode == 0, done.stderr[-3000:]
-    out = json.loads(done.stdout.strip().splitlines()[-1])
+    out = run_script(CHUNKS, {**os.environ, QUICK_ENV: "0"})
     n = out["num_updates"]
     metrics = out["metrics"]
     assert out["update"] == n
@@ -562,12 +567,7 @@ def test_two_seeds_sharded_over_two_devices() -> None:
         "XLA_FLAGS": os.environ.get("XLA_FLAGS", "")
         + " --xla_force_host_platform_device_count=2",
     }
-    done = subprocess.run(
-        [sys.executable, "-c", TWO_DEVICES],
-        cwd=ROOT, env=env, capture_output=True, text=True, timeout=600,
-    )  # fmt: skip
-    assert done.returncode == 0, done.stderr[-3000:]
-    out = json.loads(done.stdout.strip().splitlines()[-1])
+    out = run_script(TWO_DEVICES, env)
     assert "cannot be split evenly over 2 devices" in out["refused"]
     m = tiny_config().max_vehicles
     assert out["obs_shape"][:3] == [2, 4, m]
