@@ -16,7 +16,7 @@ decide one vehicle at a time (SUMO's order) or many at once.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -27,6 +27,7 @@ from jaxround.lanes.anticipate import accelerating, anticipate_follow_speed
 from jaxround.lanes.blockers import save_blocker_length
 from jaxround.lanes.inform import inform_follower, inform_leader
 from jaxround.lanes.params import LaneChangeParams
+from jaxround.lanes.speed_gain import SpeedGain, gain_left, gain_right
 from jaxround.lanes.views import Ego, LaneQ, Neighbour
 
 #: MSLCM_LC2013.cpp's constants.
@@ -34,15 +35,8 @@ LOOK_FORWARD = 10.0  # s
 LOOK_AHEAD_SPEED_MEMORY = 0.9
 RELGAIN_NORMALIZATION_MIN_SPEED = 10.0  # m/s
 URGENCY = 2.0
-KEEP_RIGHT_TIME = 5.0  # s
 TURN_LANE_DIST = 200.0  # m
 NUMERICAL_EPS = 0.001
-#: SUMO 1.28, not in the 2021 source read: a wish to change left for speed
-#: turns urgent (and negotiates with the target lane as a strategic one
-#: does) once mySpeedGainProbability passes this, whatever lcSpeedGain
-#: (measured: 49.75 -> 50.38 in the step it turned, at 4 and 5 m/s;
-#: `tests/sumo/test_lc2013_jax.py::test_urgent_speed_gain`).
-SPEED_GAIN_URGENT_PROBABILITY = 50.0
 
 
 class Wish(NamedTuple):
@@ -72,18 +66,27 @@ class Wish(NamedTuple):
     blocker_length: jax.Array
 
 
+def either(right: bool | jax.Array, if_right: Any, if_left: Any) -> Any:
+    """``if_right`` or ``if_left`` (trees of the same structure) for a look
+    to the right or left: chosen in Python where ``right`` is a bool, by
+    `jnp.where` where it is an array (a look whose side the data decide:
+    `jaxround.lanes.decide.turn_of_one_side`)."""
+    if isinstance(right, bool):
+        return if_right if right else if_left
+    return jax.tree.map(lambda a, b: jnp.where(right, a, b), if_right, if_left)
+
+
 def check_change(
-    direction: int, ego: Ego, neigh_lead: Neighbour, neigh_follow: Neighbour,
-    lc: LaneChangeParams,
+    direction: int | jax.Array, ego: Ego, neigh_lead: Neighbour,
+    neigh_follow: Neighbour, lc: LaneChangeParams,
 ) -> jax.Array:  # fmt: skip
     """`MSLaneChanger::checkChange`'s safety test: blocked (bits) where a
     target-lane neighbour overlaps or is closer than its secure gap times
     1 / lcAssertive (speeds of this step, one action step per step)."""
-    by_leader = (
-        lca.BLOCKED_BY_RIGHT_LEADER if direction < 0 else lca.BLOCKED_BY_LEFT_LEADER
-    )
-    by_follower = (
-        lca.BLOCKED_BY_RIGHT_FOLLOWER if direction < 0 else lca.BLOCKED_BY_LEFT_FOLLOWER
+    right = direction < 0
+    by_leader = either(right, lca.BLOCKED_BY_RIGHT_LEADER, lca.BLOCKED_BY_LEFT_LEADER)
+    by_follower = either(
+        right, lca.BLOCKED_BY_RIGHT_FOLLOWER, lca.BLOCKED_BY_LEFT_FOLLOWER
     )
     nf, nl = neigh_follow, neigh_lead
     follower_overlaps = nf.exists & (nf.gap < 0)
@@ -100,7 +103,7 @@ def check_change(
 
 
 def wants_change(
-    direction: int,
+    direction: int | jax.Array,
     ego: Ego,
     memory_state: jax.Array,
     speed_gain_probability: jax.Array,
@@ -124,7 +127,9 @@ def wants_change(
     left_space_kept: jax.Array | float = 0.0,
     blocker_kept: jax.Array | float = 0.0,
 ) -> Wish:
-    """`MSLCM_LC2013::_wantsChange` for ``direction`` (-1 right, +1 left).
+    """`MSLCM_LC2013::_wantsChange` for ``direction`` (-1 right, +1 left: an
+    int, or an int array where the data decide the side; then both of the
+    speed-gain branches are computed and one kept).
 
     Args:
         memory_state, speed_gain_probability, keep_right_probability,
@@ -144,15 +149,15 @@ def wants_change(
             ``myLeadingBlockerLength`` so far this step.
     """
     right = direction < 0
-    lca_dir = lca.RIGHT if right else lca.LEFT
-    my_lca = lca.MRIGHT if right else lca.MLEFT
+    lca_dir = either(right, lca.RIGHT, lca.LEFT)
+    my_lca = either(right, lca.MRIGHT, lca.MLEFT)
     v, driver = ego.speed, ego.driver
     float_dtype = jnp.result_type(float)
     # 1. the best lane: with both lanes equally good, the one looked at
     equal = (curr.best_lane_offset == 0) & (neigh.best_lane_offset == 0)
     best_offset = jnp.where(equal, direction, curr.best_lane_offset)
     best = jax.tree.map(lambda n, b: jnp.where(equal, n, b), neigh, best)
-    change_to_best = (best_offset < 0) if right else (best_offset > 0)
+    change_to_best = either(right, best_offset < 0, best_offset > 0)
     on_course = change_to_best & (best_offset == curr.best_lane_offset)
     abs_offset = jnp.abs(best_offset).astype(float_dtype)
     ret = memory_state & lca.MESSAGE_BITS
@@ -165,7 +170,7 @@ def wants_change(
         jnp.maximum(0.0, memory_factor * look_ahead_speed + (1 - memory_factor) * v),
     )
     la_dist = (
-        look_ahead * LOOK_FORWARD * lc.strategic * (1.0 if right else lc.lookahead_left)
+        look_ahead * LOOK_FORWARD * lc.strategic * either(right, 1.0, lc.lookahead_left)
     )
     la_dist = la_dist + 2.0 * driver.length_with_gap
     la_dist = jnp.where(jnp.asarray(lc.strategic) < 0, -1e3, la_dist)
@@ -196,7 +201,7 @@ def wants_change(
         [ret | lca_dir | lca.STRATEGIC | lca.URGENT, ret | lca.STAY | lca.STRATEGIC],
         ret,
     ).astype(jnp.int32)
-    counter = lca.LEFT if right else lca.RIGHT
+    counter = either(right, lca.LEFT, lca.RIGHT)
     asked = traci.influence(strategic_state, request)
     asked = jnp.where(
         (asked & counter) != 0, asked & ~(lca.TRACI | counter | lca.URGENT), asked
@@ -246,7 +251,7 @@ def wants_change(
         anticipate_follow_speed(ego, leader, current_dist, ego.v_max, speeding_up, dt),
     )
     sgp = speed_gain_probability
-    inconvenience = -sgp / lc.threshold_left if not right else sgp / lc.threshold_right
+    inconvenience = either(right, sgp / lc.threshold_right, -sgp / lc.threshold_left)
     inconvenience = jnp.minimum(
         1.0, jnp.maximum(this_vsafe / neigh_vsafe - 1.0, inconvenience)
     )
@@ -254,8 +259,8 @@ def wants_change(
 
     # 7. roundabouts: to the inner lane cooperatively, stay off the outer one
     in_roundabout = jnp.asarray(roundabout_bonus) > 0
-    roundabout_req = (
-        (lca_dir | lca.COOPERATIVE) if not right else (lca.STAY | lca.COOPERATIVE)
+    roundabout_req = either(
+        right, lca.STAY | lca.COOPERATIVE, lca_dir | lca.COOPERATIVE
     )
     # 8. cooperation: help a vehicle that asked this one to make room
     cooperates = (
@@ -271,64 +276,24 @@ def wants_change(
         neigh_vsafe, RELGAIN_NORMALIZATION_MIN_SPEED
     )
     # 9. speed gain and keep right
-    krp = keep_right_probability
-    keep_right = jnp.zeros_like(urgent)
-    speed_gain_urgent = jnp.zeros_like(urgent)
-    if right:
-        faster_here = this_vsafe - 5.0 / 3.6 > neigh_vsafe
-        decayed = jnp.where(sgp < 0, sgp * 0.5**dt, sgp)
-        gained = jnp.where(
-            (sgp < 0) | (relative_gain > 0), sgp - dt * relative_gain, sgp
-        )
-        sgp = jnp.where(faster_here, decayed, gained)
-        road_speed_factor = ego.v_max / ego.speed_limit
-        acceptance = 7.0 * road_speed_factor * jnp.maximum(1.0, v)
-        full_speed_gap = jnp.maximum(
-            0.0, neigh_dist - follow.brake_gap(driver, ego.v_max, dt)
-        )
-        driving_s = jnp.minimum(acceptance, full_speed_gap / ego.v_max)
-        slow_neigh = neigh_lead.exists & (neigh_lead.speed < ego.v_max)
-        gap_to_slow = jnp.maximum(
-            0.0,
-            jnp.minimum(
-                full_speed_gap,
-                neigh_lead.gap - follow.secure_gap(driver, ego.v_max, neigh_lead.speed),
-            ),
-        )
-        driving_s = jnp.where(
-            slow_neigh,
-            jnp.minimum(
-                driving_s,
-                gap_to_slow / jnp.where(slow_neigh, ego.v_max - neigh_lead.speed, 1.0),
-            ),
-            driving_s,
-        )
-        delta_prob = lc.threshold_right * (driving_s / acceptance) / KEEP_RIGHT_TIME
-        krp = jnp.where(faster_here, krp, krp - dt * delta_prob)
-        keep_right = ~faster_here & (krp * lc.keep_right < -lc.threshold_right)
-        speed_gain = (sgp < -lc.threshold_right) & (
-            neigh_dist / jnp.maximum(0.1, v) > 20.0
-        )
-    else:
-        sgp = jnp.where(
-            this_vsafe > neigh_vsafe,
-            jnp.where(sgp > 0, sgp * 0.5**dt, sgp),
-            jnp.where(
-                this_vsafe == neigh_vsafe,
-                jnp.where(sgp > 0, sgp * 0.8**dt, sgp),
-                sgp + dt * relative_gain,
-            ),
-        )
-        speed_gain = (
-            (sgp > lc.threshold_left)
-            & (relative_gain > NUMERICAL_EPS)
-            & (neigh_dist / jnp.maximum(0.1, v) > 20.0)
-        )
-        speed_gain_urgent = sgp > SPEED_GAIN_URGENT_PROBABILITY
+    gain = SpeedGain(
+        sgp=sgp, krp=keep_right_probability, keep_right=jnp.zeros_like(urgent),
+        speed_gain=jnp.zeros_like(urgent), urgent=jnp.zeros_like(urgent),
+    )  # fmt: skip
+    looks = dict(ego=ego, neigh_lead=neigh_lead, this_vsafe=this_vsafe,
+                 neigh_vsafe=neigh_vsafe, relative_gain=relative_gain,
+                 neigh_dist=neigh_dist, lc=lc, dt=dt)  # fmt: skip
+    gain = either(
+        right,
+        gain_right(gain, **looks) if right is not False else gain,
+        gain_left(gain, **looks) if right is not True else gain,
+    )
+    sgp, krp, keep_right = gain.sgp, gain.krp, gain.keep_right
+    speed_gain, speed_gain_urgent = gain.speed_gain, gain.urgent
     # 10. towards the best lane when speed does not suffer
     strategic = (
         on_course & (jnp.asarray(lc.strategic) >= 0) & (relative_gain >= 0)
-        & ((sgp < 0) if right else (sgp > 0))
+        & either(right, sgp < 0, sgp > 0)
     )  # fmt: skip
 
     # after the early returns (the state before the request), the first wish

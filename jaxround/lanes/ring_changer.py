@@ -9,7 +9,8 @@ the order of `RingArrays.lane_order`, `context`: the step passes SUMO's,
 `jaxround.lanes.active_lanes`; the table's own is lane-table order),
 front to back within an edge, ties to the right lane, empty slots last.
 This module is one turn (`turn`) and what the step makes of the turns
-(`changes`).
+(`changes`); a turn is one look, to the one side with a lane
+(`jaxround.lanes.decide.turn_of_one_side`).
 
 What a candidate sees, as `MSLaneChanger::getRealLeader`/`getRealFollower`
 find it (SUMO's source as read in docs/lc2013-map.md section 2):
@@ -47,7 +48,7 @@ import jax.numpy as jnp
 from jaxround.lanes import ring_neighbours as neighbours
 from jaxround.lanes import traci
 from jaxround.lanes.changer import FAR, _pick
-from jaxround.lanes.decide import Kept, Side, Told, turn_of
+from jaxround.lanes.decide import Kept, Side, Told, turn_of_one_side
 from jaxround.lanes.follow import Driver, secure_gap
 from jaxround.lanes.inform import slow_down_for_blocked
 from jaxround.lanes.merge_leaders import MergeLeaders
@@ -91,7 +92,7 @@ class Sight(NamedTuple):
     """What each vehicle saw at its turn, to the right (column 0) and left
     (1). (M, 2) each: the state it wanted (blocked bits in), the target
     lane's leader and follower (slot, -1 for none) and their gaps (m), the
-    roundabout bonus (m)."""
+    roundabout bonus (m); 0, -1, inf, -1, inf, 0 on a side without a lane."""
 
     state: jax.Array
     lead: jax.Array
@@ -175,7 +176,7 @@ class Outcome(NamedTuple):
         direction: -1/0/+1; change_state: the state it changed with (0: none).
         state: its `myOwnState` after the turn (before `changed()`).
         kept: its probabilities, look-ahead speed and advices.
-        told: its messages (4,).
+        told: its messages (2,), to the target lane's leader and follower.
         blocked, target: (2,) right and left: registered blocked on the
             target lane, and that lane.
         to_lane, to_path: where a change takes it.
@@ -277,37 +278,35 @@ def turn(ctx: Context, i: jax.Array, view: View, memory: Memory) -> Outcome:
         )
         state_me = state_me | bits
         advices_me = push_advice(advices_me, advice)
-    sides, targets, paths, seen = [], [], [], []
-    for side in (0, 1):
-        tz = jnp.maximum(net.lane_side[own, side], 0)
-        q = jnp.maximum(net.change_path[p, k, side], 0)
-        lead = neighbours.leader_on(net, scene, i, q, tz, own, dt)
-        lead, critical = with_merge(veh, i, side, lead, me, lc_i.safety_factor)
-        back = neighbours.follower_on(net, scene, i, tz)
-        bonus = neighbours.roundabout_bonus(
-            net, occupied, (p, k, z_own, side), own, pos_i, lc_i.cooperative
-        )
-        sides.append(Side(
-            may=(net.lane_side[own, side] >= 0)
-            & (net.change_path[p, k, side] >= 0) & active_i,
-            ego=ego_view(tz), neigh=laneq(net.lane_index[tz]),
-            lead=neighbour(*lead), lead_slot=lead[0],
-            follow=neighbour(*back), follow_slot=back[0], bonus=bonus,
-            held=False if veh.entry_hold is None else veh.entry_hold[i, side],
-            critical=critical,
-        ))  # fmt: skip
-        targets.append(tz)
-        paths.append(q)
-        seen.append((jnp.where(lead[1], lead[0], -1), lead[2],
-                     jnp.where(back[1], back[0], -1), back[2], bonus))  # fmt: skip
+    # roads of one or two lanes: a lane on one side at most
+    # (`RingArrays.from_tables`), so one look, to the side that has one
+    to_right = net.lane_side[own, 0] >= 0
+    side = jnp.where(to_right, 0, 1)
+    tz = jnp.maximum(net.lane_side[own, side], 0)
+    q = jnp.maximum(net.change_path[p, k, side], 0)
+    lead = neighbours.leader_on(net, scene, i, q, tz, own, dt)
+    lead, critical = with_merge(veh, i, side, lead, me, lc_i.safety_factor)
+    back = neighbours.follower_on(net, scene, i, tz)
+    bonus = neighbours.roundabout_bonus(
+        net, occupied, (p, k, z_own, side), own, pos_i, lc_i.cooperative
+    )
+    look = Side(
+        may=(net.lane_side[own, side] >= 0)
+        & (net.change_path[p, k, side] >= 0) & active_i,
+        ego=ego_view(tz), neigh=laneq(net.lane_index[tz]),
+        lead=neighbour(*lead), lead_slot=lead[0],
+        follow=neighbour(*back), follow_slot=back[0], bonus=bonus,
+        held=False if veh.entry_hold is None else veh.entry_hold[i, side],
+        critical=critical,
+    )  # fmt: skip
     request = traci.NONE
     if veh.lane_request is not None:
         request = traci.change_request(
             veh.lane_request[i], net.lane_index[own], jnp.sum(edge >= 0)
         )
-    decision, kept, told = turn_of(
+    decision, kept, told = turn_of_one_side(
         i, memory, state_me, advices_me, curr=curr, best=best, leader=leader,
-        right=sides[0], left=sides[1], lc=lc_i, dt=dt, request=request,
+        side=look, to_right=to_right, lc=lc_i, dt=dt, request=request,
         request_s=traci.REQUEST_STEPS * dt,
         first_blocked=neighbour(
             jnp.maximum(view.first_blocked, 0), view.first_blocked >= 0, 0.0
@@ -330,20 +329,24 @@ def turn(ctx: Context, i: jax.Array, view: View, memory: Memory) -> Outcome:
     # registers it unchanged without asking the model
     decides = ctx.decides[i]
     direction = jnp.where(decides, decision.direction, 0)
-    right, left = direction < 0, direction > 0
+    changes_lane = direction != 0
+    seen = (jnp.where(lead[1], lead[0], -1), lead[2],
+            jnp.where(back[1], back[0], -1), back[2], bonus)  # fmt: skip
+    unseen = (-1, jnp.inf, -1, jnp.inf, 0.0)  # the side without a lane
+    on_side = jnp.arange(2) == side
     return Outcome(
         direction=direction,
-        change_state=jnp.where(direction != 0, decision.change_state, 0),
+        change_state=jnp.where(changes_lane, decision.change_state, 0),
         state=jnp.where(decides, decision.kept, view.state),
         kept=kept,
         told=told,
         blocked=jnp.stack([decision.blocked_right, decision.blocked_left]),
-        target=jnp.stack(targets),
-        to_lane=jnp.where(right, targets[0], jnp.where(left, targets[1], own)),
-        to_path=jnp.where(right, paths[0], jnp.where(left, paths[1], p)),
+        target=jnp.stack([tz, tz]),
+        to_lane=jnp.where(changes_lane, tz, own),
+        to_path=jnp.where(changes_lane, q, p),
         sight=Sight(
             jnp.stack([decision.state_right, decision.state_left]),
-            *(jnp.stack([seen[0][f], seen[1][f]]) for f in range(5)),
+            *(jnp.where(on_side, x, y) for x, y in zip(seen, unseen, strict=True)),
         ),
     )
 

@@ -99,6 +99,13 @@ class RingArrays(NamedTuple):
         brake = tables.lane_speed**2 * 0.5 / min_decel
         start = np.where(np.isnan(paths.path_lane_start), np.inf, paths.path_lane_start)
         n_lanes = len(paths.lane_ids)
+        both_sides = (paths.lane_right >= 0) & (paths.lane_left >= 0)
+        if both_sides.any():
+            lane = paths.lane_ids[int(np.argmax(both_sides))]
+            raise ValueError(
+                f"lane {lane} has lanes on both sides: the roundabout's lane "
+                "changer takes roads of one or two lanes (one look per turn)"
+            )
         upstream_m = np.full((n_lanes, n_lanes), np.inf, np.dtype(f))
         upstream_minor = np.zeros((n_lanes, n_lanes), bool)
         for x, ups in enumerate(tables.upstream_lane):

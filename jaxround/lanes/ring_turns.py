@@ -29,8 +29,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from jaxround.lanes.decide import deliver, keep
-from jaxround.lanes.memory import after_change
+from jaxround.lanes.decide import Kept, deliver, keep
 from jaxround.lanes.params import LaneChangeParams
 from jaxround.lanes.ring_changer import (
     Context,
@@ -60,10 +59,14 @@ def take(ctx: Context, carry: Carry, i: jax.Array) -> tuple[Carry, Outcome]:
     # the barrier measured faster on the CPU (docs/benchmarks.md, 2026-11-28:
     # 23 against 25-26 ms per call at batch 256); XLA expands it before fusion
     out = jax.lax.optimization_barrier(turn(ctx, i, view, mem))
-    mem = keep(deliver(mem, out.told), i, out.kept)
-    mem = mem.replace(state=mem.state.at[i].set(out.state))
-    slots = jnp.arange(done.shape[0])
-    mem = after_change(mem, slots == jnp.where(out.direction != 0, i, -1))
+    # its row: what the turn keeps, or `changed()`'s reset where it changed
+    # (`jaxround.lanes.memory.after_change` of its row alone)
+    moved = out.direction != 0
+    kept = jax.tree.map(
+        lambda x, reset: jnp.where(moved, reset, x), out.kept, reset_row(out.kept)
+    )
+    mem = keep(deliver(mem, out.told), i, kept)
+    mem = mem.replace(state=mem.state.at[i].set(jnp.where(moved, 0, out.state)))
     for side in (0, 1):
         target, blocked = out.target[side], out.blocked[side]
         last_blocked = jnp.where(blocked, last_blocked.at[target].set(i),
@@ -74,6 +77,14 @@ def take(ctx: Context, carry: Carry, i: jax.Array) -> tuple[Carry, Outcome]:
         )  # fmt: skip
     lane = lane.at[i].set(out.to_lane)
     return (lane, done.at[i].set(True), last_blocked, first_blocked, mem), out
+
+
+def reset_row(kept: Kept) -> Kept:
+    """A row of `Kept` as `changed()` leaves it (`after_change`): zeros,
+    no advices."""
+    return Kept(*(jnp.zeros_like(x) for x in kept))._replace(
+        advices=jnp.full_like(kept.advices, jnp.nan)
+    )
 
 
 def first_carry(ctx: Context, memory: Memory) -> Carry:

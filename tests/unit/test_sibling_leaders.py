@@ -14,6 +14,8 @@ and the two overlapped (docs/two_lane.md).
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -173,3 +175,21 @@ def test_a_same_source_leader_leads_no_more_once_the_follower_passed_the_parting
 
     assert not parted(5.8)
     assert parted(5.9)
+
+
+def test_a_lane_with_lanes_on_both_sides_is_refused() -> None:
+    """The changer takes one look per turn, to the side that has a lane: a
+    road of three lanes is named and refused before anything runs."""
+    cfg = load_config("two_lane")
+    tables = changer_tables(cfg, network_file(cfg))
+    paths = tables.paths
+    lane = int(np.argmax(paths.lane_right >= 0))  # a left lane with a right
+    left = paths.lane_left.copy()
+    left[lane] = paths.lane_right[lane]  # and now a lane on its left too
+    wider = dataclasses.replace(
+        tables, paths=dataclasses.replace(paths, lane_left=left)
+    )
+    with pytest.raises(
+        ValueError, match=f"lane {paths.lane_ids[lane]} has lanes on both"
+    ):
+        ring_neighbours.RingArrays.from_tables(wider, 4.5)
