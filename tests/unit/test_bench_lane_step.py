@@ -18,3 +18,9 @@ def test_an_existing_results_file_is_not_overwritten(tmp_path, capsys):
         lane_step.main(["--batch", "16", "--no-sumo", "--out", str(out)])
     assert "exists" in capsys.readouterr().err
     assert out.read_text() == "{}"
+
+
+def test_a_negative_alternation_is_refused(capsys):
+    with pytest.raises(SystemExit):
+        lane_step.main(["--batch", "16", "--alternate", "-1"])
+    assert "--alternate -1: expected N >= 1" in capsys.readouterr().err

@@ -11,12 +11,19 @@ the turns one after another: `LaneChanger.in_rounds`) at the batches of
 ``--rounds``. Each row is `jaxround.apps.bench.jax_timing.measure_jax`
 (30 simulated seconds warmed up, the next 30 timed); the JSON is written
 after every row, so a run stopped by a time limit keeps what it measured.
+
+``--alternate N`` times the two steps instead in turns, N windows of each
+at every batch (two_lane, Milan, two_lane, ...), and reports the smallest
+and the median time of each and their ratios: on a machine whose load
+moves, the two then share its slow and quiet moments, where rows timed one
+after the other may not (docs/benchmarks.md, 2026-12-03).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import statistics
 import sys
 import time
 import traceback
@@ -24,8 +31,10 @@ from pathlib import Path
 from typing import Any
 
 import jax
+import numpy as np
+from tqdm import tqdm
 
-from jaxround.apps.bench.jax_timing import batch_schedules, measure_jax
+from jaxround.apps.bench.jax_timing import batch_schedules, measure_jax, warmed_window
 from jaxround.apps.bench.report import code_version
 from jaxround.apps.bench.sumo_timing import (
     run_sumo_parallel,
@@ -57,6 +66,32 @@ def time_sumo(name: str, steps: int) -> dict[str, Any]:
         "mean_vehicles": one["mean_vehicles"],
         "sumo_version": one.get("sumo_version"),
     }
+
+
+def alternated(batch: int, rounds: int) -> dict[str, Any]:
+    """Both scenarios' windows at ``batch``, compiled and warmed, then timed
+    in turns ``rounds`` times each: us per vehicle-step, smallest and median,
+    and two_lane's over Milan's."""
+    windows = {}
+    for name in SCENARIOS:
+        env, params = make(load_config(name))
+        steps = round(WINDOW_S / env.dt)
+        warm = warmed_window(env, params, batch_schedules(env, batch, seed=0), steps)
+        windows[name] = (warm.run, warm.states, params)
+    walls: dict[str, list[float]] = {name: [] for name in SCENARIOS}
+    vehicle_steps = {}
+    for _ in range(rounds):
+        for name, (run_window, states, params) in windows.items():
+            started = time.perf_counter()
+            out = jax.block_until_ready(run_window(states, params))
+            walls[name].append(time.perf_counter() - started)
+            vehicle_steps[name] = int(np.sum(jax.device_get(out[1]), dtype=np.int64))
+    row: dict[str, Any] = {"batch": batch, "rounds": rounds}
+    for stat, pick in (("min", min), ("median", statistics.median)):
+        us = {n: 1e6 * pick(walls[n]) / vehicle_steps[n] for n in SCENARIOS}
+        row |= {f"{n}_us_{stat}": us[n] for n in SCENARIOS}
+        row[f"ratio_{stat}"] = us["two_lane"] / us["milan"]
+    return row
 
 
 def run(
@@ -123,6 +158,10 @@ def main(argv: list[str] | None = None) -> int:
         help="batches of two_lane.yaml again, its changer in rounds",
     )  # fmt: skip
     parser.add_argument("--no-sumo", action="store_true", help="skip SUMO's timing")
+    parser.add_argument(
+        "--alternate", type=int, default=0, metavar="N",
+        help="instead: N windows of each scenario in turns at every batch",
+    )  # fmt: skip
     parser.add_argument("--out", type=Path, help="JSON file (refused if it exists)")
     args = parser.parse_args(argv)
     for b in [*args.batch, *args.rounds]:
@@ -130,6 +169,16 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"batch {b}: expected a positive integer")
     if args.out is not None and args.out.exists():
         parser.error(f"--out {args.out}: exists; choose a new file")
+    if args.alternate < 0:
+        parser.error(f"--alternate {args.alternate}: expected N >= 1 (0: off)")
+    if args.alternate:
+        rows = []
+        for batch in tqdm(args.batch, desc="batches"):
+            rows.append(alternated(batch, args.alternate))
+            if args.out is not None:
+                args.out.write_text(json.dumps({"code": code_version(), "rows": rows}))
+        print(json.dumps({"code": code_version(), "rows": rows}, indent=1))
+        return 0
     result = run(args.batch, args.rounds, not args.no_sumo, args.out)
     if args.out is None:
         print(json.dumps(result, indent=1))
