@@ -283,11 +283,10 @@ def wants_change(
     looks = dict(ego=ego, neigh_lead=neigh_lead, this_vsafe=this_vsafe,
                  neigh_vsafe=neigh_vsafe, relative_gain=relative_gain,
                  neigh_dist=neigh_dist, lc=lc, dt=dt)  # fmt: skip
-    gain = either(
-        right,
-        gain_right(gain, **looks) if right is not False else gain,
-        gain_left(gain, **looks) if right is not True else gain,
-    )
+    if isinstance(right, bool):  # the side known when traced: its branch
+        gain = (gain_right if right else gain_left)(gain, **looks)
+    else:  # the data decide the side: both branches, one kept
+        gain = either(right, gain_right(gain, **looks), gain_left(gain, **looks))
     sgp, krp, keep_right = gain.sgp, gain.krp, gain.keep_right
     speed_gain, speed_gain_urgent = gain.speed_gain, gain.urgent
     # 10. towards the best lane when speed does not suffer
