@@ -22,7 +22,8 @@ After every SUMO step the controller
 4. sends the action's lane column as ``changeLane(id, index + d, dt / 2)``
    (> 0.5: the lane to the left, d = 1; < -0.5: to the right, d = -1;
    between: hold the lane, d = 0; NaN: nothing), only where the AV's edge
-   has two lanes and the one asked for, so on one-lane roads never, under
+   has two lanes and the one asked for, so on one-lane roads never, and
+   only where the step's move keeps the AV off the junction ahead, under
    the default lane-change mode 1621: SUMO weighs the request against
    LC2013's own wishes in its next lane-change phase and changes only
    where its safety checks allow (`jaxround.envs.lane_view`, which JAX
@@ -99,6 +100,7 @@ class PolicyController:
         # the time-gap floor of the actions, as `assertive_tau` applies it
         self.min_tau = min(cfg.safety.min_av_tau_s, av.tau)
         self._lanes_of_edge: dict[str, int] = {}
+        self._lane_length: dict[str, float] = {}
         self.record_observations = False
         self.start_episode(schedule)
 
@@ -113,6 +115,7 @@ class PolicyController:
         self._times: dict[str, list[int]] = {k: [] for k in PHASES}
         self.commands = 0
         self.lane_requests = 0
+        self.lane_requests_withheld = 0
         self.last_obs: np.ndarray | None = None
         self.last_traffic: SumoTraffic | None = None
 
@@ -230,9 +233,11 @@ class PolicyController:
         """``changeLane(id, index + d, dt / 2)`` for each AV whose lane column
         asks for the lane to its left (> 0.5, d = 1), right (< -0.5, d = -1)
         or to hold its lane (between, d = 0), where its edge has the lane
-        asked for (a hold: where it has two); NaN asks nothing
-        (`jaxround.envs.lane_view`). Lane-change mode 1621 stays: SUMO
-        changes only where LC2013's safety checks allow.
+        asked for (a hold: where it has two), and only off junctions: not
+        on an internal lane, nor where ``(v + accel * dt) * dt`` could carry
+        the AV past its lane's end before the lane-change phase; NaN asks
+        nothing (`jaxround.envs.lane_view`). Lane-change mode 1621 stays:
+        SUMO changes only where LC2013's safety checks allow.
 
         Args:
             libsumo: the running simulation.
@@ -245,7 +250,17 @@ class PolicyController:
         asked = np.nonzero(is_av & ~np.isnan(change))[0].tolist()
         for slot in asked:
             # the lane the observer read: "<edge>_<index>"
-            edge, index = traffic.lane_ids[slot].rsplit("_", 1)
+            lane_id = traffic.lane_ids[slot]
+            edge, index = lane_id.rsplit("_", 1)
+            if lane_id not in self._lane_length:
+                self._lane_length[lane_id] = libsumo.lane.getLength(lane_id)
+            reach = (traffic.speed[slot] + self.av_accel * self.dt) * self.dt
+            # on a junction, or a move that could take it onto one
+            if edge.startswith(":") or (
+                traffic.lane_pos[slot] + reach >= self._lane_length[lane_id]
+            ):
+                self.lane_requests_withheld += 1
+                continue
             if edge not in self._lanes_of_edge:
                 self._lanes_of_edge[edge] = libsumo.edge.getLaneNumber(edge)
             n_lanes = self._lanes_of_edge[edge]
@@ -295,7 +310,8 @@ class PolicyController:
 
     def report(self) -> dict[str, Any]:
         """Plain data for `SumoRun.controller_report`: per-step times (lists,
-        ms), slots, slot overflow, AV commands and lane requests sent."""
+        ms), slots, slot overflow, AV commands, lane requests sent and those
+        withheld on or before a junction."""
         return {
             "step_ms": {k: v.tolist() for k, v in self.step_times_ms().items()},
             "max_slots": self.sumo.max_slots,
@@ -303,6 +319,7 @@ class PolicyController:
             "off_path_vehicle_steps": self.sumo.off_path_vehicle_steps,
             "commands": self.commands,
             "lane_requests": self.lane_requests,
+            "lane_requests_withheld": self.lane_requests_withheld,
         }
 
 

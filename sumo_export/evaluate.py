@@ -133,10 +133,10 @@ def controller_summary(reports: Sequence[dict[str, Any]]) -> dict[str, Any]:
     Returns:
         ``{"steps": n, "median_ms": x, "p99_ms": x, "mean_ms": x,
         "phases_median_ms": {phase: x}, "phases_p99_ms": {phase: x},
-        "overflow_vehicle_steps": n,
-        "commands": n, "lane_requests": n}``; times are of the whole
-        controller call (read, observe, policy, command) and pooled over the
-        runs' steps; the counts are totals.
+        "overflow_vehicle_steps": n, "commands": n, "lane_requests": n,
+        "lane_requests_withheld": n}``; times are of the whole controller
+        call (read, observe, policy, command) and pooled over the runs'
+        steps; the counts are totals.
     """
     total = np.concatenate([np.asarray(r["step_ms"]["total"]) for r in reports])
     empty = total.size == 0
@@ -157,7 +157,12 @@ def controller_summary(reports: Sequence[dict[str, Any]]) -> dict[str, Any]:
         },
         **{
             key: int(sum(r[key] for r in reports))
-            for key in ("overflow_vehicle_steps", "commands", "lane_requests")
+            for key in (
+                "overflow_vehicle_steps",
+                "commands",
+                "lane_requests",
+                "lane_requests_withheld",
+            )
         },
     }
 

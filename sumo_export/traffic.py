@@ -64,6 +64,7 @@ class SumoTraffic:
         speed: float64 (n,) speeds as SUMO holds them.
         unslotted: ids of the vehicles in the network that found no slot.
         lane_ids: SUMO lane ids of the n occupied slots' vehicles.
+        lane_pos: float64 (n,) their positions on those lanes (m).
     """
 
     ids: list[str]
@@ -71,6 +72,7 @@ class SumoTraffic:
     speed: np.ndarray
     unslotted: list[str]
     lane_ids: list[str] = dataclasses.field(default_factory=list)
+    lane_pos: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
 
     @property
     def n(self) -> int:
@@ -239,6 +241,7 @@ class SumoObserver:
             speed=np.asarray(speed, np.float64),
             unslotted=unslotted,
             lane_ids=lane_ids,
+            lane_pos=np.asarray(lane_pos, np.float64),
         )
 
     def observe(self, traffic: SumoTraffic) -> np.ndarray:

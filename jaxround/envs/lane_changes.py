@@ -186,12 +186,18 @@ class LaneChanger:
         self.turn_order = TurnOrder.of(net_file, self.paths.lane_ids, self.arrays)
 
     def request(
-        self, state: EnvState, lane_action: jax.Array, agent: jax.Array
+        self,
+        state: EnvState,
+        lane_action: jax.Array,
+        agent: jax.Array,
+        car: CarFollowing,
     ) -> jax.Array:
         """int (M,) the lane index each AV's action asks for in this step's
-        changes (-1: none), from ``state`` before the move
+        changes (-1: none), from ``state`` before the move, where the move
+        (at most ``car.accel`` more speed) keeps the AV off a junction
         (`jaxround.envs.lane_view.lane_request`)."""
-        return lane_request(self.arrays, state, lane_action, agent)
+        reach = (state.speed + car.accel * self.dt) * self.dt
+        return lane_request(self.arrays, state, lane_action, agent, reach)
 
     def patch(
         self, state: EnvState, lc: LaneChangeParams, car: CarFollowing | None = None

@@ -12,12 +12,20 @@ with d in {-1, 0, +1} and the index of the lane the AV is on when it is
 commanded, for the next lane-change phase only
 (`jaxround.lanes.traci.REQUEST_STEPS`), only where that edge has the lane
 asked for (a hold: where the edge has two lanes), under SUMO's default
-lane-change mode 1621. The request is urgent and cancels an LC2013 wish
-it conflicts with (a hold cancels every change, an AV's own strategic
-change to reach its exit too), but keeps LC2013's safety checks
-(`jaxround.lanes.traci`). SUMO weighs it in the next step's lane-change
-phase, after the move (``MSVehicle::Influencer::influenceChangeDecision``
-in ``MSLaneChanger``), and so does `jaxround.envs.lane_changes.LaneChanger`.
+lane-change mode 1621, and only off junctions: not from an AV on an
+internal (junction) lane, nor from one whose move could carry it onto one
+(its position on its lane plus ``(v + accel * dt) * dt``, the farthest it
+can go in the step, at least the lane's length). SUMO changes lanes on the
+ring's through internal edges too (``MSEdge::allowsLaneChanging``), and
+there its safety checks do not see a vehicle on the other internal lane
+that leaves the same ring lane (the exit's): requests sent there ran AVs
+into such vehicles beside them (docs/two_lane.md). The request is urgent
+and cancels an LC2013 wish it conflicts with (a hold cancels every
+change, an AV's own strategic change to reach its exit too), but keeps
+LC2013's safety checks (`jaxround.lanes.traci`). SUMO weighs it in the next
+step's lane-change phase, after the move
+(``MSVehicle::Influencer::influenceChangeDecision`` in ``MSLaneChanger``),
+and so does `jaxround.envs.lane_changes.LaneChanger`.
 
 The ``"lanes"`` observer is the ``"rich"`` one and `LANE_COLUMNS`: the
 index of the AV's lane on its edge; how far its own lane path goes on (a
@@ -71,7 +79,11 @@ def lane_direction(lane_action: jax.Array) -> tuple[jax.Array, jax.Array]:
 
 
 def lane_request(
-    net: RingArrays, state: EnvState, lane_action: jax.Array, agent: jax.Array
+    net: RingArrays,
+    state: EnvState,
+    lane_action: jax.Array,
+    agent: jax.Array,
+    reach: jax.Array,
 ) -> jax.Array:
     """int (M,) the lane index each AV asks for this step (-1: none).
 
@@ -80,14 +92,17 @@ def lane_request(
         state: the state at the start of the step (before the move).
         lane_action: float (M,) the action's lane column.
         agent: bool (M,) the slots that hold an AV.
+        reach: float (M,) the farthest each vehicle can move in the step (m):
+            a request is sent only where that keeps it off a junction.
     """
-    _, lane, _ = locate(net, state.route, state.pos)
+    _, lane, on_lane = locate(net, state.route, state.pos)
     asked, direction = lane_direction(lane_action)
     right, left = net.lane_side[lane, RIGHT] >= 0, net.lane_side[lane, LEFT] >= 0
     exists = jnp.where(
         direction > 0, left, jnp.where(direction < 0, right, left | right)
     )
-    asked = agent & asked & exists
+    off_junction = ~net.lane_internal[lane] & (on_lane + reach < net.lane_length[lane])
+    asked = agent & asked & exists & off_junction
     return jnp.where(asked, net.lane_index[lane] + direction, -1).astype(jnp.int32)
 
 

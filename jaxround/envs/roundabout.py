@@ -257,7 +257,7 @@ class RoundaboutEnv:
             else:
                 command = command_from_action(state, action, pv, self.dt)
             changer = self.lane_changer  # the lane action: a TraCI request
-            request = changer and changer.request(state, action[:, 1], agent)
+            request = changer and changer.request(state, action[:, 1], agent, pv)
         lc = LaneChangeParams() if p.lane_change is None else p.lane_change
         patch = changer and changer.patch(state, lc, pv)
         v_next, regs, _, leader, gap, own_entry = dynamics.planned_speed(
