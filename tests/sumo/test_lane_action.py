@@ -56,11 +56,14 @@ def runs() -> dict[str, Any]:
     ctrl.record_observations = True
     sumo_rows: list[dict[str, Any]] = []
     wrong_lanes: list[str] = []
-    sent: list[tuple[str, float, float, float] | None] = []
+    sent: list[tuple[str, float, float, float]] = []
+
+    patched: dict[str, Any] = {}
 
     def record(libsumo: Any, t: float) -> None:
-        if not sent:  # every request as SUMO gets it: lane, position, speed
+        if not patched:  # every request as SUMO gets it: lane, position, speed
             change_lane = libsumo.vehicle.changeLane
+            patched.update(module=libsumo.vehicle, change_lane=change_lane)
 
             def recorded(vid: str, index: int, duration: float) -> None:
                 lane = libsumo.vehicle.getLaneID(vid)
@@ -70,7 +73,6 @@ def runs() -> dict[str, Any]:
                 change_lane(vid, index, duration)
 
             libsumo.vehicle.changeLane = recorded
-            sent.append(None)
         ctrl(libsumo, t)
         if len(sumo_rows) >= N_STEPS:
             return
@@ -81,7 +83,11 @@ def runs() -> dict[str, Any]:
                 wrong_lanes.append(f"{t}: {vid}")
         sumo_rows.append({vid: (state[k], obs[k]) for k, vid in enumerate(traffic.ids)})
 
-    run = run_schedule(cfg, schedule, controller=record)
+    try:
+        run = run_schedule(cfg, schedule, controller=record)
+    finally:  # libsumo's module outlives the run: its own changeLane back
+        if patched:
+            patched["module"].changeLane = patched["change_lane"]
 
     # JAX: the same rule on the environment's own state
     env, params = make(cfg, max_vehicles=32)
@@ -127,7 +133,7 @@ def runs() -> dict[str, Any]:
         "run": run, "report": ctrl.report(), "wrong_lanes": wrong_lanes,
         "sumo_rows": sumo_rows, "jax_rows": jax_rows,
         "jax_changes": int(np.sum(state.lanes.changes)),
-        "sent": [x for x in sent if x is not None], "jax_sent_near": sent_near,
+        "sent": sent, "jax_sent_near": sent_near,
         "jax_withheld": withheld, "av_accel": cfg.drivers.av.accel,
         "dt": cfg.simulation.dt_s,
     }  # fmt: skip
