@@ -157,15 +157,51 @@ def test_lane_numbers_of_vehicles_placed_by_hand(two_lane) -> None:
     assert obs[0, ROOM_LEFT] > 0 and obs[0, ROOM_RIGHT] == 0 and obs[0, GAP_RIGHT] == 0
     assert obs[2, LANE_INDEX] == 1
     assert obs[0, ROOM_OWN] == 1.0
-    # the request: the lane index to the left, none to the right (no lane)
+    # the request: the lane index to the left, none to the right (no lane);
+    # all three on the ring lanes and off their ends (no junction in reach)
+    state = placed(env, state, [p, p, q], [me, me + 5.0, start_q + 1.0])
     agent = state.active & state.is_av
-    asks = env.lane_changer.request
-    left, right = asks(state, jnp.ones(8), agent), asks(state, -jnp.ones(8), agent)
+    car = params.for_vehicles(state.is_av)
+
+    def asks(state, column):
+        return env.lane_changer.request(state, column, agent, car)
+
+    left, right = asks(state, jnp.ones(8)), asks(state, -jnp.ones(8))
     assert int(left[0]) == 1 and int(right[0]) == -1
     assert int(right[2]) == 0 and int(left[2]) == -1
-    hold = asks(state, jnp.zeros(8), agent)
+    hold = asks(state, jnp.zeros(8))
     assert hold[:3].tolist() == [0, 0, 1] and (hold[3:] == -1).all()
-    assert (asks(state, jnp.full(8, jnp.nan), agent) == -1).all()
+    assert (asks(state, jnp.full(8, jnp.nan)) == -1).all()
+
+
+def test_no_request_on_or_just_before_a_junction(two_lane) -> None:
+    """An AV 1 m before the end of its ring lane asks nothing at 5 m/s (its
+    move, at most (v + accel dt) dt = 3.15 m, could take it onto the
+    junction), and asks at rest (0.65 m); on the junction's internal lane
+    it asks nothing at rest either."""
+    env, params, state = two_lane
+    paths, arrays = env.lane_changer.paths, env.lane_changer.arrays
+    p, k = next(
+        (p, k)
+        for p in range(paths.n_paths)
+        for k in range(paths.path_lanes.shape[1] - 1)
+        if paths.path_lanes[p, k] >= 0
+        and paths.lane_ids[paths.path_lanes[p, k]].startswith("ring")
+        and paths.change_path[p, k, LEFT] >= 0
+        and paths.lane_ids[paths.path_lanes[p, k + 1]].startswith(":")
+    )
+    lane = int(paths.path_lanes[p, k])
+    end = float(paths.path_lane_start[p, k]) + float(arrays.lane_length[lane])
+    on_junction = float(paths.path_lane_start[p, k + 1]) + 1.0
+    state = placed(env, state, [p, p], [on_junction, end - 1.0])
+    agent = state.active & state.is_av
+    car = params.for_vehicles(state.is_av)
+    left = jnp.ones(8)
+    moving = env.lane_changer.request(state, left, agent, car)
+    assert moving[:2].tolist() == [-1, -1]
+    at_rest = state.replace(speed=jnp.zeros_like(state.speed))
+    asked = env.lane_changer.request(at_rest, left, agent, car)
+    assert asked[:2].tolist() == [-1, int(paths.lane_index[lane]) + 1]
 
 
 def test_on_one_lane_roads_the_lane_numbers_ask_for_nothing() -> None:
